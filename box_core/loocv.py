@@ -1,0 +1,211 @@
+"""Leave-one-out cross-validation of constraint selectors on a score matrix.
+
+For every row i, a selector is built from the exact prior of the other n - 1 rows and run
+against row i as if it were a new instance: its trace is the sequence of columns it tries,
+and each try costs ``times[i, column]``.  From the traces come the time to the first
+feasible plan and the best score found versus time (paper Figs. 3 and 4).
+
+All held-out rows of a batch advance in lockstep through the same policy code that
+:func:`box_core.make_selector` runs live (see :mod:`box_core.selectors`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from box_core import validation
+from box_core.failure import failure_value as _failure_value
+from box_core.failure import fill_failures
+from box_core.prior import Prior
+from box_core.selectors import FoldContext, Policy, check_selector
+from box_core.summary import Summary, summarize
+
+DEFAULT_SELECTORS = ("box", "static", "rand", "doo")
+
+
+@dataclass(eq=False)
+class LoocvResult:
+    """Traces and derived measures, per selector name (all arrays indexed by held-out row).
+
+    ``order[name]``                 (n, k) columns tried, in order (-1 after the last try)
+    ``first_feasible_step[name]``   (n,) 0-based step of the first feasible try, -1 if none
+    ``first_feasible_time[name]``   (n,) time up to and including that try: planning time
+                                    plus the selector's own compute time; NaN if none
+    ``first_feasible_planning_time[name]``  the same without the selector's compute time
+    ``overhead[name]``              (n, k) the selector's compute seconds per step
+                                    (batch wall time divided by the batch size)
+    ``best_score[name]``            (n, G) best score found by each time of ``time_grid``
+                                    (the failure value before any plan is found)
+    """
+
+    selectors: tuple[str, ...]
+    k: int
+    failure_value: float
+    eligible: np.ndarray  # rows with at least one feasible constraint
+    optimal_score: np.ndarray  # best score of each row (ORACLE's first try)
+    time_grid: np.ndarray
+    order: dict[str, np.ndarray] = field(default_factory=dict)
+    first_feasible_step: dict[str, np.ndarray] = field(default_factory=dict)
+    first_feasible_time: dict[str, np.ndarray] = field(default_factory=dict)
+    first_feasible_planning_time: dict[str, np.ndarray] = field(default_factory=dict)
+    overhead: dict[str, np.ndarray] = field(default_factory=dict)
+    best_score: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return self.eligible.shape[0]
+
+    def summary(self, reference: str = "box", level: float = 0.95) -> Summary:
+        """Mean time to first feasible plan per selector, its interval and speed-ups."""
+        return summarize(self, reference=reference, level=level)
+
+
+def loocv(
+    scores,
+    *,
+    times=None,
+    feasible=None,
+    selectors: Iterable[str] | str = DEFAULT_SELECTORS,
+    k: int | None = None,
+    features=None,
+    seed: int = 0,
+    params: Mapping[str, Mapping] | None = None,
+    failure_rule: str = "magnitude",
+    time_grid=None,
+    measure_overhead: bool = True,
+) -> LoocvResult:
+    """Leave-one-out evaluation of ``selectors`` on a score matrix (n x m, higher is better).
+
+    ``feasible`` (n x m bool): which entries are feasible plans; infeasible entries get the
+    failure value of ``failure_rule`` (see :func:`box_core.failure_value`).  Without it the
+    matrix is taken to already hold failures at its minimum value: entries above the minimum
+    are feasible.  ``times`` (n x m, seconds) defaults to 1 per try.  ``params`` maps a
+    selector name to its parameters, e.g. ``{"box": {"c": 1.0}}``.  Fold i seeds its random
+    choices with ``(seed, i)``.  ``measure_overhead=False`` leaves the selectors' compute time
+    out of the times, which makes the result fully deterministic.
+    """
+    D = validation.score_matrix(scores, min_rows=3)
+    n, m = D.shape
+    T = np.ones((n, m)) if times is None else validation.matching_matrix(times, D.shape, name="times")
+    if (T < 0).any():
+        raise ValueError("times must be >= 0")
+    F_theta = None if features is None else validation.feature_matrix(features, m)
+    names = (selectors,) if isinstance(selectors, str) else tuple(selectors)
+    if not names:
+        raise ValueError("selectors is empty")
+    if len(set(names)) != len(names):
+        raise ValueError(f"selectors has duplicates: {names}")
+    k = m if k is None else k
+    if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 1 <= k <= m:
+        raise ValueError(f"k must be an integer between 1 and m = {m}, got {k!r}")
+    k = int(k)
+    params = dict(params or {})
+    stray = set(params) - set(names)
+    if stray:
+        raise ValueError(f"params given for selectors not evaluated: {', '.join(sorted(stray))}")
+    classes = {
+        name: check_selector(name, dict(params.get(name, {})), features=F_theta) for name in names
+    }
+
+    if feasible is None:
+        d = float(D.min())
+        feas = D > d
+        if not feas.any():
+            raise ValueError("every score equals the minimum: no entry can be told feasible")
+    else:
+        feas = validation.boolean_matrix(feasible, D.shape, name="feasible")
+        d = _failure_value(D, feas, failure_rule)
+        D = fill_failures(D, feas, d)
+
+    prior = Prior.fit(D)
+    runs = {
+        name: _run(cls, dict(params.get(name, {})), prior, D, F_theta, seed, k, measure_overhead)
+        for name, cls in classes.items()
+    }
+    result = LoocvResult(
+        selectors=names,
+        k=k,
+        failure_value=d,
+        eligible=feas.any(axis=1),
+        optimal_score=D.max(axis=1),
+        time_grid=np.zeros(0),
+    )
+    rows = np.arange(n)[:, None]
+    totals = {}
+    for name, (order, overhead) in runs.items():
+        hit = feas[rows, order]
+        found = hit.any(axis=1)
+        step = np.where(found, hit.argmax(axis=1), -1)
+        planning = np.cumsum(T[rows, order], axis=1)
+        totals[name] = planning + np.cumsum(overhead, axis=1)
+        at = np.maximum(step, 0)[:, None]
+        result.order[name] = order
+        result.overhead[name] = overhead
+        result.first_feasible_step[name] = step
+        result.first_feasible_planning_time[name] = np.where(found, planning[rows, at][:, 0], np.nan)
+        result.first_feasible_time[name] = np.where(found, totals[name][rows, at][:, 0], np.nan)
+    grid = _default_grid(totals, T) if time_grid is None else _checked_grid(time_grid)
+    result.time_grid = grid
+    for name, total in totals.items():
+        result.best_score[name] = _best_by_time(total, D[rows, result.order[name]], grid, d)
+    return result
+
+
+def _run(cls: type[Policy], kwargs, prior, D, features, seed, k, measure):
+    """One selector over every held-out row: (order (n, k), overhead seconds (n, k))."""
+    n, m = D.shape
+    order = np.full((n, k), -1, dtype=np.intp)
+    overhead = np.zeros((n, k))
+    batch = cls.fold_batch(n, m, k)
+    for start in range(0, n, batch):
+        rows = np.arange(start, min(n, start + batch))
+        clock = time.perf_counter()
+        ctx = FoldContext(
+            prior=prior.folds(rows),
+            seeds=[(seed, int(i)) for i in rows],
+            features=features,
+            true_scores=D[rows],
+            horizon=k,
+        )
+        policy = cls(ctx, **kwargs)
+        setup = time.perf_counter() - clock
+        for t in range(k):
+            clock = time.perf_counter()
+            cols = policy.propose()
+            policy.update(cols, D[rows, cols])
+            overhead[rows, t] = (time.perf_counter() - clock) / rows.size
+            order[rows, t] = cols
+        overhead[rows, 0] += setup / rows.size
+    if not measure:
+        overhead[:] = 0.0
+    return order, overhead
+
+
+def _default_grid(totals, T) -> np.ndarray:
+    """0 followed by 199 log-spaced times from the cheapest try to the longest trace."""
+    longest = max(float(total[:, -1].max()) for total in totals.values())
+    positive = T[T > 0]
+    shortest = float(positive.min()) if positive.size else 1.0
+    longest = max(longest, shortest)
+    return np.concatenate([[0.0], np.geomspace(shortest, longest, 199)])
+
+
+def _checked_grid(grid) -> np.ndarray:
+    g = np.asarray(grid, dtype=np.float64)
+    if g.ndim != 1 or g.size == 0 or not np.isfinite(g).all() or (np.diff(g) < 0).any():
+        raise ValueError("time_grid must be a non-empty, finite, non-decreasing 1-D array")
+    return g
+
+
+def _best_by_time(total: np.ndarray, tried_scores: np.ndarray, grid, d: float) -> np.ndarray:
+    """Best score completed by each grid time, per row; ``d`` before the first plan."""
+    best = np.maximum.accumulate(tried_scores, axis=1)
+    out = np.empty((total.shape[0], grid.size))
+    for i in range(total.shape[0]):
+        done = np.searchsorted(total[i], grid, side="right")
+        out[i] = np.where(done > 0, best[i, np.maximum(done - 1, 0)], d)
+    return out

@@ -1,0 +1,1 @@
+"""Everything that produces or consumes score matrices: the command line, stores, planners."""
