@@ -59,15 +59,15 @@ class GaussianPosterior:
         rows = self._rows
         W = self._W[:, :t, :]
         alpha = self._alpha[:, :t]
-        l = W[rows, :, cols]  # (B, t): W[b, :, cols[b]]
+        lw = W[rows, :, cols]  # (B, t): W[b, :, cols[b]], the 'l' of the module docstring
         cross = self.prior.cov_rows(cols)  # (B, m)
         if t:
-            cross -= np.matmul(l[:, None, :], W)[:, 0, :]
-        schur = self.prior_var[rows, cols] + self.eps - np.einsum("bt,bt->b", l, l)
+            cross -= np.matmul(lw[:, None, :], W)[:, 0, :]
+        schur = self.prior_var[rows, cols] + self.eps - np.einsum("bt,bt->b", lw, lw)
         # In exact arithmetic the Schur complement of Sigma + eps I is >= eps.
         delta = np.sqrt(np.maximum(schur, self.eps))
         w = cross / delta[:, None]
-        resid = scores - self.prior.mean[rows, cols] - np.einsum("bt,bt->b", l, alpha)
+        resid = scores - self.prior.mean[rows, cols] - np.einsum("bt,bt->b", lw, alpha)
         a = resid / delta
         self._W[:, t, :] = w
         self._alpha[:, t] = a

@@ -90,7 +90,10 @@ def loocv(
     """
     D = validation.score_matrix(scores, min_rows=3)
     n, m = D.shape
-    T = np.ones((n, m)) if times is None else validation.matching_matrix(times, D.shape, name="times")
+    if times is None:
+        T = np.ones((n, m))
+    else:
+        T = validation.matching_matrix(times, D.shape, name="times")
     if (T < 0).any():
         raise ValueError("times must be >= 0")
     F_theta = None if features is None else validation.feature_matrix(features, m)
@@ -146,7 +149,9 @@ def loocv(
         result.order[name] = order
         result.overhead[name] = overhead
         result.first_feasible_step[name] = step
-        result.first_feasible_planning_time[name] = np.where(found, planning[rows, at][:, 0], np.nan)
+        result.first_feasible_planning_time[name] = np.where(
+            found, planning[rows, at][:, 0], np.nan
+        )
         result.first_feasible_time[name] = np.where(found, totals[name][rows, at][:, 0], np.nan)
     grid = _default_grid(totals, T) if time_grid is None else _checked_grid(time_grid)
     result.time_grid = grid

@@ -75,5 +75,6 @@ def _require_finite(arr: np.ndarray, name: str) -> None:
         where = tuple(int(i) for i in np.argwhere(bad)[0])
         kind = "NaN" if np.isnan(arr[where]) else "inf"
         raise ValueError(
-            f"{name} contains {int(bad.sum())} non-finite value(s); first is {kind} at index {where}"
+            f"{name} contains {int(bad.sum())} non-finite value(s); "
+            f"first is {kind} at index {where}"
         )

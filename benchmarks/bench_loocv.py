@@ -1,0 +1,123 @@
+"""Leave-one-out evaluation speed: box_core against a naive implementation, same run.
+
+    python benchmarks/bench_loocv.py [--repeats 3] [--naive-folds 12]
+
+1. Full LOOCV of box, static, rand and doo with k = m on a synthetic 1800 x 162 matrix
+   shaped like the paper's grasp-and-arm data, beside the naive implementation of
+   tests/reference.py (refit mu and Sigma per fold, eq. 2 solved afresh with
+   numpy.linalg.solve at every step), timed on a few folds and extrapolated to all n.
+   The naive and fast orders are compared on those folds.
+2. 1000 x 1000 with k = 50: wall time and peak memory.
+
+Prints medians over repeats; no thresholds are asserted (machines are noisy).
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import statistics
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import box_core  # noqa: E402
+from box_core.failure import fill_failures  # noqa: E402
+from box_core.synthetic import score_matrix  # noqa: E402
+from tests import reference  # noqa: E402
+
+SELECTORS = ("box", "static", "rand", "doo")
+
+
+def timed(fn, repeats):
+    times, out = [], None
+    for _ in range(repeats):
+        start = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times), out
+
+
+def naive_fold(D, features, name, i, k, seed):
+    """One fold of the naive evaluator (the refit is inside reference.*_order)."""
+    train, truth = np.delete(D, i, axis=0), D[i]
+    if name == "box":
+        return reference.box_order(train, truth, k)
+    if name == "static":
+        return reference.static_order(train, k)
+    if name == "rand":
+        return reference.rand_order(D.shape[1], k, (seed, i))
+    return reference.doo_order(truth, features, k, (seed, i))
+
+
+def paper_scale(repeats: int, naive_folds: int) -> None:
+    data = score_matrix(1800, 162, seed=0)
+    n, m = data.scores.shape
+    print(f"== LOOCV {n} x {m}, k = m = {m}, selectors {', '.join(SELECTORS)}")
+    print(f"   matrix: {data.feasible.mean():.1%} feasible entries, "
+          f"{int(data.feasible.any(axis=0).sum())} columns ever feasible")
+
+    def fast():
+        return box_core.loocv(data.scores, feasible=data.feasible, times=data.times,
+                              features=data.features, selectors=SELECTORS, seed=0)
+
+    fast_s, result = timed(fast, repeats)
+    per = {}
+    for name in SELECTORS:
+        per[name], _ = timed(lambda name=name: box_core.loocv(
+            data.scores, feasible=data.feasible, times=data.times, features=data.features,
+            selectors=(name,), seed=0), repeats)
+    print(f"   box_core:  {fast_s:8.2f} s  (median of {repeats}; alone: "
+          + ", ".join(f"{k} {v:.2f} s" for k, v in per.items()) + ")")
+
+    D = fill_failures(data.scores, data.feasible, result.failure_value)
+    folds = np.linspace(0, n - 1, naive_folds).astype(int)
+    naive_per, agree = {}, True
+    for name in SELECTORS:
+        start = time.perf_counter()
+        orders = [naive_fold(D, data.features, name, int(i), m, 0) for i in folds]
+        naive_per[name] = (time.perf_counter() - start) / len(folds) * n
+        agree &= bool(np.array_equal(np.array(orders), result.order[name][folds]))
+    naive_s = sum(naive_per.values())
+    print(f"   naive:     {naive_s:8.1f} s  (timed on {len(folds)} folds, extrapolated to {n}: "
+          + ", ".join(f"{k} {v:.1f} s" for k, v in naive_per.items()) + ")")
+    print(f"   speed-up:  {naive_s / fast_s:8.1f} x   (target >= 60 x)")
+    print(f"   orders identical to the naive ones on the timed folds: {'yes' if agree else 'NO'}")
+    print("   " + str(result.summary()).replace("\n", "\n   "))
+
+
+def large(repeats: int) -> None:
+    data = score_matrix(1000, 1000, seed=1, types=40, useful=200, per_type=5)
+    print("== LOOCV 1000 x 1000, k = 50, selectors " + ", ".join(SELECTORS))
+
+    def run():
+        return box_core.loocv(data.scores, feasible=data.feasible, times=data.times,
+                              features=data.features, selectors=SELECTORS, k=50, seed=0)
+
+    wall, _ = timed(run, repeats)
+    tracemalloc.start()
+    run()
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"   wall:      {wall:8.2f} s  (median of {repeats}; target <= 10 s)")
+    print(f"   memory:    {peak / 2**20:8.1f} MiB peak allocated by the evaluation (tracemalloc), "
+          f"{rss:.0f} MiB max RSS of this whole process (target <= 2 GiB)")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--naive-folds", type=int, default=12)
+    args = parser.parse_args()
+    paper_scale(args.repeats, args.naive_folds)
+    large(args.repeats)
+
+
+if __name__ == "__main__":
+    main()

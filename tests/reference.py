@@ -1,0 +1,134 @@
+"""Naive reference implementations, written straight from the paper's equations.
+
+Nothing here shares code with box_core: each fold refits mu and Sigma from the n - 1
+training rows, and every BOX step solves eq. 2 afresh with numpy.linalg.solve.  The tests
+compare box_core against these; benchmarks/bench_loocv.py times them as the baseline.
+
+Conventions shared with box_core (they are part of its documented contract, not its code):
+the diagonal jitter 1e-8 * max(diag Sigma), ties within 1e-9 of the best go to the lowest
+index, and fold i of a seeded evaluation draws from numpy.random.default_rng((seed, i)).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+JITTER = 1e-8
+TIE = 1e-9
+
+
+def fit(D):
+    mu = D.mean(axis=0)
+    X = D - mu
+    return mu, X.T @ X / (D.shape[0] - 1)
+
+
+def pick(values, tried, scale):
+    """Lowest untried index among those within the tie tolerance of the best."""
+    values = np.where(tried, -np.inf, np.asarray(values, dtype=float))
+    best = values.max()
+    tol = TIE * max(abs(best), scale)
+    return int(np.flatnonzero(values >= best - tol)[0])
+
+
+def posterior(mu, S, tried_idx, observed):
+    """Eq. 2 by direct solves: posterior mean and variance of every column."""
+    jitter = JITTER * (S.diagonal().max() if S.diagonal().max() > 0 else 1.0)
+    if not tried_idx:
+        return mu.copy(), S.diagonal().copy()
+    tried = list(tried_idx)
+    K = S[np.ix_(tried, tried)] + jitter * np.eye(len(tried))
+    cross = S[tried, :]  # t x m
+    mean = mu + cross.T @ np.linalg.solve(K, np.asarray(observed) - mu[tried])
+    var = S.diagonal() - np.einsum("tm,tm->m", cross, np.linalg.solve(K, cross))
+    return mean, var
+
+
+def ucb_order(mu, S, truth, k, coef):
+    """BOX-style order; ``coef(t)`` returns (UCB coefficient, variance factor) at t tries."""
+    m = mu.size
+    tried = np.zeros(m, dtype=bool)
+    idx, obs = [], []
+    scale = math.sqrt(max(S.diagonal().max(), 0.0))
+    for t in range(k):
+        mean, var = posterior(mu, S, idx, obs)
+        c, factor = coef(t)
+        ucb = mean + c * np.sqrt(factor * np.maximum(var, 0.0))
+        j = pick(ucb, tried, scale)
+        tried[j] = True
+        idx.append(j)
+        obs.append(truth[j])
+    return idx
+
+
+def box_order(train, truth, k, c=1.96):
+    mu, S = fit(train)
+    return ucb_order(mu, S, truth, k, lambda t: (c, 1.0))
+
+
+def pembo_order(train, truth, k, delta=0.01):
+    mu, S = fit(train)
+    N = train.shape[0]
+    L = math.log(4 / delta)
+
+    def coef(t):
+        it = t + 1
+        zeta = math.sqrt(6 * (N - 3 + it + 2 * math.sqrt(it * L) + 2 * L)
+                         / (delta * N * max(N - it - 1, 1))) + math.sqrt(2 * L)
+        return zeta, (N - 1) / max(N - t - 1, 1)
+
+    return ucb_order(mu, S, truth, k, coef)
+
+
+def static_order(train, k):
+    mu = train.mean(axis=0)
+    return sorted(range(mu.size), key=lambda j: (-mu[j], j))[:k]
+
+
+def rand_order(m, k, seed):
+    return list(np.random.default_rng(seed).permutation(m)[:k])
+
+
+def doo_order(truth, features, k, seed, lam=1.0):
+    m = truth.size
+    tried, idx = np.zeros(m, dtype=bool), []
+    dist = np.linalg.norm(features[None, :, :] - features[:, None, :], axis=2)
+    j = int(np.random.default_rng(seed).integers(m))
+    for _ in range(k):
+        tried[j] = True
+        idx.append(j)
+        if len(idx) == k:
+            break
+        bound = (truth[idx][:, None] + lam * dist[idx]).min(axis=0)  # recomputed from scratch
+        scale = np.abs(truth[idx]).max()
+        j = pick(bound, tried, scale)
+    return idx
+
+
+def oracle_order(truth, k):
+    return sorted(range(truth.size), key=lambda j: (-truth[j], j))[:k]
+
+
+def loocv_orders(D, name, k, seed=0, features=None, **params):
+    """Order of selector ``name`` for every held-out row, refitting each fold."""
+    n, m = D.shape
+    out = []
+    for i in range(n):
+        train, truth = np.delete(D, i, axis=0), D[i]
+        if name == "box":
+            out.append(box_order(train, truth, k, **params))
+        elif name == "pembo":
+            out.append(pembo_order(train, truth, k, **params))
+        elif name == "static":
+            out.append(static_order(train, k))
+        elif name == "rand":
+            out.append(rand_order(m, k, (seed, i)))
+        elif name == "doo":
+            out.append(doo_order(truth, features, k, (seed, i), **params))
+        elif name == "oracle":
+            out.append(oracle_order(truth, k))
+        else:
+            raise ValueError(name)
+    return np.array(out)

@@ -1,0 +1,89 @@
+import json
+
+import numpy as np
+import pytest
+import scipy.io
+from typer.testing import CliRunner
+
+from pipeline.cli import app
+from tests.matrices import degenerate
+
+runner = CliRunner()
+
+
+@pytest.fixture
+def matrix():
+    D = degenerate(20, 8, seed=1, constant=2, duplicate=1, rank=2)
+    times = np.random.default_rng(0).uniform(0.01, 0.1, D.shape)
+    return D, D > -10, times, np.random.default_rng(1).normal(size=(8, 2))
+
+
+def test_evaluate_npz_prints_the_summary_table(tmp_path, matrix):
+    D, F, T, theta = matrix
+    path = tmp_path / "d.npz"
+    np.savez(path, scores=D, feasible=F, times=T, features=theta)
+    res = runner.invoke(app, ["evaluate", str(path)])
+    assert res.exit_code == 0, res.output
+    for name in ("box", "static", "rand", "doo"):
+        assert name in res.output
+
+
+def test_evaluate_json_holds_the_loocv_numbers(tmp_path, matrix):
+    import box_core
+
+    D, F, T, _ = matrix
+    path = tmp_path / "d.npz"
+    np.savez(path, scores=D, feasible=F, times=T)
+    res = runner.invoke(app, ["evaluate", str(path), "--json", "--no-overhead",
+                              "--selectors", "box,static", "-k", "5"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.output)
+    direct = box_core.loocv(D, feasible=F, times=T, selectors=("box", "static"), k=5,
+                            measure_overhead=False).summary()
+    assert [s["name"] for s in doc["selectors"]] == ["box", "static"]
+    assert doc["selectors"][1]["mean_time"] == pytest.approx(direct.line("static").mean_time)
+    assert (doc["n"], doc["m"], doc["k"]) == (20, 8, 5)
+
+
+def test_evaluate_mat_with_named_variables(tmp_path, matrix):
+    D, F, T, _ = matrix
+    path = tmp_path / "d.mat"
+    scipy.io.savemat(path, {"D": D, "ok": F.astype(np.uint8), "T": T})
+    res = runner.invoke(app, ["evaluate", str(path), "--scores-var", "D", "--feasible-var", "ok",
+                              "--times-var", "T", "--json"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.output)["rows_with_feasible"] == int(F.any(axis=1).sum())
+
+
+@pytest.mark.parametrize("setup, args, message", [
+    (lambda p: None, [], "no such file"),
+    (lambda p: np.savez(p, other=np.ones((4, 4))), [], "no array named 'scores'"),
+    (lambda p: np.savez(p, scores=np.ones((4, 4)) + np.eye(4), times=np.ones((3, 4))), [],
+     "times has shape"),
+    (lambda p: np.savez(p, scores=np.array([[1.0, np.nan]] * 4)), [], "NaN"),
+    (lambda p: p.write_bytes(b"not a zip"), [], "cannot read"),
+    (lambda p: np.savez(p, scores=np.ones((4, 4)) + np.eye(4)), ["-k", "9"], "k must be"),
+])
+def test_bad_input_is_one_line_and_exit_code_2(tmp_path, setup, args, message):
+    path = tmp_path / "d.npz"
+    setup(path)
+    res = runner.invoke(app, ["evaluate", str(path), *args])
+    assert res.exit_code == 2
+    assert message in res.output
+    assert len(res.output.strip().splitlines()) == 1
+
+
+def test_unsupported_format_is_refused(tmp_path):
+    path = tmp_path / "d.csv"
+    path.write_text("1,2\n")
+    res = runner.invoke(app, ["evaluate", str(path)])
+    assert res.exit_code == 2 and "unsupported format" in res.output
+
+
+def test_demo_writes_a_matrix_and_evaluates_it(tmp_path):
+    path = tmp_path / "demo.npz"
+    res = runner.invoke(app, ["demo", "--n", "60", "--m", "20", "--path", str(path)])
+    assert res.exit_code == 0, res.output
+    with np.load(path) as f:
+        assert f["scores"].shape == (60, 20)
+    assert "pembo" in res.output
