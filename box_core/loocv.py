@@ -37,7 +37,9 @@ class LoocvResult:
                                     plus the selector's own compute time; NaN if none
     ``first_feasible_planning_time[name]``  the same without the selector's compute time
     ``overhead[name]``              (n, k) the selector's compute seconds per step
-                                    (batch wall time divided by the batch size)
+                                    (batch wall time divided by the batch size: an
+                                    amortised cost, below what one live selector pays per
+                                    step; benchmarks/bench_loocv.py prints both)
     ``best_score[name]``            (n, G) best score found by each time of ``time_grid``
                                     (the failure value before any plan is found)
     """

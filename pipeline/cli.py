@@ -105,7 +105,8 @@ def demo(
     share latent types, like the paper's grasp-and-arm matrix (1800 x 162).
     """
     try:
-        data = synthetic.score_matrix(n, m, useful=min(50, m), per_type=min(6, m), seed=seed)
+        useful = min(50, m)  # the paper's matrix: about 50 of 162 grasps ever feasible
+        data = synthetic.score_matrix(n, m, useful=useful, per_type=min(4, useful), seed=seed)
     except ValueError as exc:
         _fail(str(exc))
     path.parent.mkdir(parents=True, exist_ok=True)
