@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from box_core import validation
+from box_core.failure import RULES, fill_failures
 from box_core.failure import failure_value as _failure_value
-from box_core.failure import fill_failures
 from box_core.prior import Prior
 from box_core.selectors import FoldContext, Policy, check_selector
 from box_core.summary import Summary, summarize
@@ -98,7 +98,9 @@ def loocv(
         T = validation.matching_matrix(times, D.shape, name="times")
     if (T < 0).any():
         raise ValueError("times must be >= 0")
-    F_theta = None if features is None else validation.feature_matrix(features, m)
+    theta = None if features is None else validation.feature_matrix(features, m)
+    if failure_rule not in RULES:
+        raise ValueError(f"unknown failure rule {failure_rule!r}; choose one of {', '.join(RULES)}")
     names = (selectors,) if isinstance(selectors, str) else tuple(selectors)
     if not names:
         raise ValueError("selectors is empty")
@@ -113,7 +115,7 @@ def loocv(
     if stray:
         raise ValueError(f"params given for selectors not evaluated: {', '.join(sorted(stray))}")
     classes = {
-        name: check_selector(name, dict(params.get(name, {})), features=F_theta) for name in names
+        name: check_selector(name, dict(params.get(name, {})), features=theta) for name in names
     }
 
     if feasible is None:
@@ -128,37 +130,36 @@ def loocv(
 
     prior = Prior.fit(D)
     runs = {
-        name: _run(cls, dict(params.get(name, {})), prior, D, F_theta, seed, k, measure_overhead)
+        name: _run(cls, dict(params.get(name, {})), prior, D, theta, seed, k, measure_overhead)
         for name, cls in classes.items()
     }
+    rows = np.arange(n)[:, None]
+    totals = {  # cumulative time after each try: planning plus the selector's own time
+        name: np.cumsum(T[rows, order] + overhead, axis=1)
+        for name, (order, overhead) in runs.items()
+    }
+    grid = _default_grid(totals, T) if time_grid is None else _checked_grid(time_grid)
     result = LoocvResult(
         selectors=names,
         k=k,
         failure_value=d,
         eligible=feas.any(axis=1),
         optimal_score=D.max(axis=1),
-        time_grid=np.zeros(0),
+        time_grid=grid,
     )
-    rows = np.arange(n)[:, None]
-    totals = {}
     for name, (order, overhead) in runs.items():
         hit = feas[rows, order]
         found = hit.any(axis=1)
         step = np.where(found, hit.argmax(axis=1), -1)
-        planning = np.cumsum(T[rows, order], axis=1)
-        totals[name] = planning + np.cumsum(overhead, axis=1)
         at = np.maximum(step, 0)[:, None]
+        planning = np.cumsum(T[rows, order], axis=1)
         result.order[name] = order
         result.overhead[name] = overhead
         result.first_feasible_step[name] = step
-        result.first_feasible_planning_time[name] = np.where(
-            found, planning[rows, at][:, 0], np.nan
-        )
+        planning_at = planning[rows, at][:, 0]
+        result.first_feasible_planning_time[name] = np.where(found, planning_at, np.nan)
         result.first_feasible_time[name] = np.where(found, totals[name][rows, at][:, 0], np.nan)
-    grid = _default_grid(totals, T) if time_grid is None else _checked_grid(time_grid)
-    result.time_grid = grid
-    for name, total in totals.items():
-        result.best_score[name] = _best_by_time(total, D[rows, result.order[name]], grid, d)
+        result.best_score[name] = _best_by_time(totals[name], D[rows, order], grid, d)
     return result
 
 

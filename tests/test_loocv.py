@@ -162,6 +162,8 @@ def test_summary_reports_the_computed_means_and_ratios():
     ({"params": {"doo": {"lam": 2.0}}}, "not evaluated"),
     ({"params": {"box": {"lam": 2.0}}}, "unknown parameter"),
     ({"scores": np.full((4, 3), 2.0)}, "no entry can be told feasible"),
+    ({"failure_rule": "paper"}, "unknown failure rule"),
+    ({"time_grid": [1.0, 0.5]}, "time_grid"),
 ])
 def test_bad_input_is_named(kwargs, message):
     args = {"scores": well_conditioned(4, 3, seed=0), "selectors": ("box",)}
