@@ -35,17 +35,15 @@ def load_matrix(
     if not path.is_file():
         raise FileNotFoundError(f"no such file: {path}")
     suffix = path.suffix.lower()
+    if suffix not in (".npz", ".mat"):
+        raise ValueError(f"{path}: unsupported format {suffix or '(none)'}; use .npz or .mat")
     try:
         if suffix == ".npz":
             with np.load(path, allow_pickle=False) as archive:
                 arrays = {name: archive[name] for name in archive.files}
-        elif suffix == ".mat":
-            arrays = {k: v for k, v in scipy.io.loadmat(path).items() if not k.startswith("__")}
         else:
-            raise ValueError(f"{path}: unsupported format {suffix or '(none)'}; use .npz or .mat")
+            arrays = {k: v for k, v in scipy.io.loadmat(path).items() if not k.startswith("__")}
     except (OSError, ValueError, NotImplementedError) as exc:
-        if isinstance(exc, ValueError) and "unsupported format" in str(exc):
-            raise
         raise ValueError(f"{path}: cannot read as {suffix} ({exc})") from None
     if scores not in arrays:
         found = ", ".join(sorted(arrays)) or "nothing"

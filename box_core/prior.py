@@ -41,7 +41,8 @@ class Prior:
     @classmethod
     def fit(cls, scores) -> Prior:
         """Fit mu and Sigma to ``scores`` (n x m, n >= 2, finite)."""
-        D = validation.score_matrix(scores, min_rows=2)
+        D = validation.score_matrix(scores, min_rows=2).copy()  # later edits by the caller
+        D.flags.writeable = False  # must not change the leave-one-out folds
         mean = D.mean(axis=0)
         centered = D - mean
         cov = centered.T @ centered / (D.shape[0] - 1)

@@ -8,7 +8,9 @@ type succeed with the same constraints.  This generator reproduces that structur
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -22,8 +24,13 @@ class SyntheticData:
     types: np.ndarray  # (n,) latent type of each instance
 
     def save(self, path) -> None:
-        np.savez_compressed(path, scores=self.scores, feasible=self.feasible,
-                            times=self.times, features=self.features)
+        """Write an .npz archive atomically: a crash never leaves half a file at ``path``."""
+        path = Path(path)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, scores=self.scores, feasible=self.feasible,
+                                times=self.times, features=self.features)
+        os.replace(tmp, path)
 
 
 def score_matrix(

@@ -6,13 +6,14 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import typer
 from rich.console import Console
 from rich.table import Table
 
 import box_core
 from box_core import synthetic
-from box_core.io import load_matrix
+from box_core.io import MatrixFile, load_matrix
 
 app = typer.Typer(
     help="Score-space constraint selection (BOX): evaluate selectors on score matrices.",
@@ -62,6 +63,13 @@ def evaluate(
     names = [s.strip() for s in selectors.split(",") if s.strip()]
     if not names:
         names = ["box", "static", "rand"] + (["doo"] if data.features is not None else [])
+    _evaluate_matrix(data, file, names, k=k, seed=seed, c=c, failure_rule=failure_rule,
+                     overhead=overhead, as_json=as_json)
+
+
+def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, seed=0,
+                     c=1.96, failure_rule="magnitude", overhead=True, as_json=False) -> None:
+    """Run the LOOCV on loaded ``data`` and print its summary (table or JSON)."""
     params = {"box": {"c": c}} if "box" in names else {}
     try:
         result = box_core.loocv(
@@ -97,24 +105,41 @@ def demo(
     n: int = typer.Option(1800, help="Instances (rows)."),
     m: int = typer.Option(162, help="Constraints (columns)."),
     seed: int = typer.Option(0, help="Seed of the synthetic matrix and the selectors."),
-    path: Path = typer.Option(Path("data/synthetic.npz"), help="Where to write the matrix."),
+    path: Path = typer.Option(Path("data/synthetic.npz"), help="Where to write the matrix (.npz)."),
+    overwrite: bool = typer.Option(False, help="Replace a different matrix already at PATH."),
 ):
     """Generate a synthetic score matrix shaped like real planning data and evaluate it.
 
     Most entries are infeasible, a few dozen constraints are ever feasible and instances
-    share latent types, like the paper's grasp-and-arm matrix (1800 x 162).
+    share latent types, like the paper's grasp-and-arm matrix (1800 x 162). Re-running the
+    same command reuses the file; a different matrix at PATH is kept unless --overwrite.
     """
+    if path.suffix != ".npz":
+        _fail(f"{path}: the demo writes a NumPy archive; give a path ending in .npz")
     try:
         useful = min(50, m)  # the paper's matrix: about 50 of 162 grasps ever feasible
         data = synthetic.score_matrix(n, m, useful=useful, per_type=min(4, useful), seed=seed)
     except ValueError as exc:
         _fail(str(exc))
+    if path.exists() and not overwrite and not _holds(path, data):
+        _fail(f"{path} exists and holds a different matrix; pass --overwrite to replace it")
     path.parent.mkdir(parents=True, exist_ok=True)
     data.save(path)
     out.print(f"wrote {path}: {n} x {m}, {data.feasible.mean():.1%} of entries feasible")
-    evaluate(path, selectors="box,static,rand,doo,pembo", k=None, seed=seed, c=1.96,
-             failure_rule="magnitude", scores_var="scores", times_var="times",
-             feasible_var="feasible", features_var="features", overhead=True, as_json=False)
+    matrix = MatrixFile(scores=data.scores, times=data.times, feasible=data.feasible,
+                        features=data.features)
+    _evaluate_matrix(matrix, path, ["box", "static", "rand", "doo", "pembo"], seed=seed)
+
+
+def _holds(path: Path, data: synthetic.SyntheticData) -> bool:
+    """Whether the archive at ``path`` holds exactly ``data``'s arrays."""
+    try:
+        old = load_matrix(path)
+    except (FileNotFoundError, ValueError):
+        return False
+    pairs = [(old.scores, data.scores), (old.times, data.times),
+             (old.feasible, data.feasible), (old.features, data.features)]
+    return all(a is not None and np.array_equal(a, b) for a, b in pairs)
 
 
 def main() -> None:  # pragma: no cover - console entry point

@@ -87,3 +87,21 @@ def test_demo_writes_a_matrix_and_evaluates_it(tmp_path):
     with np.load(path) as f:
         assert f["scores"].shape == (60, 20)
     assert "pembo" in res.output
+
+
+def test_demo_rerun_reuses_its_file_but_keeps_a_different_one(tmp_path):
+    path = tmp_path / "demo.npz"
+    args = ["demo", "--n", "30", "--m", "10", "--path", str(path)]
+    assert runner.invoke(app, args).exit_code == 0
+    kept = path.read_bytes()
+    assert runner.invoke(app, args).exit_code == 0  # same matrix: fine
+    other = runner.invoke(app, [*args, "--seed", "1"])
+    assert other.exit_code == 2 and "--overwrite" in other.output
+    assert path.read_bytes() == kept  # the seed-0 matrix is untouched
+    assert runner.invoke(app, [*args, "--seed", "1", "--overwrite"]).exit_code == 0
+    assert path.read_bytes() != kept
+
+
+def test_demo_refuses_a_path_that_is_not_npz(tmp_path):
+    res = runner.invoke(app, ["demo", "--n", "30", "--m", "10", "--path", str(tmp_path / "x")])
+    assert res.exit_code == 2 and ".npz" in res.output

@@ -61,3 +61,11 @@ def test_fit_rejects_bad_matrices(bad, message):
 def test_leave_one_out_needs_three_rows():
     with pytest.raises(ValueError, match="at least 3 rows"):
         Prior.fit(np.ones((2, 3))).folds([0])
+
+
+def test_the_prior_is_unaffected_by_later_edits_to_the_callers_matrix():
+    D = well_conditioned(20, 4, seed=1)
+    prior = Prior.fit(D)
+    expected = prior.leave_one_out(3).mean.copy()
+    D[:] = 0.0
+    np.testing.assert_array_equal(prior.leave_one_out(3).mean, expected)
