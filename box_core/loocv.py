@@ -61,9 +61,10 @@ class LoocvResult:
     def n(self) -> int:
         return self.eligible.shape[0]
 
-    def summary(self, reference: str = "box", level: float = 0.95) -> Summary:
-        """Mean time to first feasible plan per selector, its interval and speed-ups."""
-        return summarize(self, reference=reference, level=level)
+    def summary(self, reference: str = "box", level: float = 0.95, others=None) -> Summary:
+        """Mean time to first feasible plan per selector, its interval and speed-ups;
+        ``others``: {name: per-row times measured elsewhere}, e.g. RAWPLANNER's."""
+        return summarize(self, reference=reference, level=level, others=others)
 
 
 def loocv(

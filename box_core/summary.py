@@ -68,8 +68,8 @@ class Summary:
                 _num(s.mean_time),
                 f"[{_num(s.ci_low)}, {_num(s.ci_high)}]",
                 _num(s.median_time),
-                f"{s.mean_tries:.2f}",
-                f"{s.overhead_ms:.3f}",
+                "-" if math.isnan(s.mean_tries) else f"{s.mean_tries:.2f}",
+                "-" if math.isnan(s.overhead_ms) else f"{s.overhead_ms:.3f}",
                 f"{s.speedup:.2f}",
                 f"[{s.speedup_low:.2f}, {s.speedup_high:.2f}]",
             ])
@@ -87,16 +87,33 @@ class Summary:
         return caption + "\n" + "\n".join(text)
 
 
-def summarize(result, reference: str = "box", level: float = 0.95) -> Summary:
-    """Build the :class:`Summary` of a :class:`~box_core.loocv.LoocvResult`."""
+def summarize(result, reference: str = "box", level: float = 0.95, others=None) -> Summary:
+    """Build the :class:`Summary` of a :class:`~box_core.loocv.LoocvResult`.
+
+    ``others`` maps a name to per-row times to first feasible plan measured outside the
+    LOOCV (NaN where none was found), e.g. RAWPLANNER's: they get a line of their own.
+    """
     if reference not in result.selectors:
         reference = result.selectors[0]
     eligible = result.eligible
     ref_time = result.first_feasible_time[reference][eligible]
+    measured = {}
+    for name, values in (others or {}).items():
+        values = np.asarray(values, dtype=np.float64)
+        if values.shape != eligible.shape:
+            raise ValueError(f"times of {name!r}: expected shape {eligible.shape}, "
+                             f"got {values.shape}")
+        measured[name] = values
     lines = []
-    for name in result.selectors:
-        times = result.first_feasible_time[name][eligible]
-        steps = result.first_feasible_step[name][eligible]
+    for name in (*result.selectors, *measured):
+        if name in measured:
+            times = measured[name][eligible]
+            steps = np.full(times.shape, np.nan)
+            overhead = math.nan
+        else:
+            times = result.first_feasible_time[name][eligible]
+            steps = result.first_feasible_step[name][eligible]
+            overhead = float(result.overhead[name].mean() * 1e3)
         found = ~np.isnan(times)
         mean, lo, hi = mean_ci(times, level)
         ratio, r_lo, r_hi = _paired_ratio(times, ref_time, level)
@@ -109,7 +126,7 @@ def summarize(result, reference: str = "box", level: float = 0.95) -> Summary:
             ci_high=hi,
             median_time=float(np.median(times[found])) if found.any() else math.nan,
             mean_tries=float((steps[found] + 1).mean()) if found.any() else math.nan,
-            overhead_ms=float(result.overhead[name].mean() * 1e3),
+            overhead_ms=overhead,
             speedup=ratio,
             speedup_low=r_lo,
             speedup_high=r_hi,

@@ -9,11 +9,11 @@ from pathlib import Path
 import numpy as np
 import typer
 from rich.console import Console
-from rich.table import Table
 
 import box_core
 from box_core import synthetic
 from box_core.io import MatrixFile, load_matrix
+from pipeline.tables import summary_table
 
 app = typer.Typer(
     help="Score-space constraint selection (BOX): evaluate selectors on score matrices.",
@@ -90,14 +90,7 @@ def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, 
 
 
 def print_summary(summary: box_core.Summary, title: str) -> None:
-    head, *rows = summary.table_rows()
-    table = Table(title=title, caption=f"time to first feasible plan (LOOCV, k = {summary.k}); "
-                  f"'x {summary.reference}' = mean time / mean time of {summary.reference}")
-    for i, h in enumerate(head):
-        table.add_column(h, justify="left" if i == 0 else "right")
-    for row in rows:
-        table.add_row(*row)
-    out.print(table)
+    out.print(summary_table(summary, title))
 
 
 @app.command()

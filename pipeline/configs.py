@@ -1,0 +1,183 @@
+"""Configuration schemas (Hydra structured configs) and loading of the YAML files in conf/.
+
+Every value Hydra composes is checked against these dataclasses, so a typo in a key or a
+value of the wrong type is refused before anything runs.  ``identity`` is the part of a
+config that determines the score matrix: a store remembers it and refuses to continue
+under a different one.
+"""
+
+from __future__ import annotations
+
+import enum
+import hashlib
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from omegaconf import MISSING, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from pipeline.planning.rrt import PlannerSettings
+
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+
+
+class Stage(enum.Enum):
+    instances = "instances"
+    raw = "raw"
+    constraints = "constraints"
+    scores = "scores"
+    generate = "generate"
+    evaluate = "evaluate"
+    status = "status"
+    all = "all"
+
+
+class StoreMode(enum.Enum):
+    resume = "resume"  # continue a store made with the same config; refuse a different one
+    overwrite = "overwrite"  # replace a store of ours made with a different config
+
+
+class ClusterKind(enum.Enum):
+    local = "local"
+    address = "address"
+    slurm = "slurm"
+
+
+@dataclass
+class InstancesConfig:
+    n: int = 200
+
+
+@dataclass
+class ConstraintsConfig:
+    m: int = 100  # subsampled (seeded) from the candidates when there are more
+
+
+@dataclass
+class StoreConfig:
+    path: str | None = None  # default: data/<domain>-<planner>-seed<seed>.zarr
+    mode: StoreMode = StoreMode.resume
+    block_instances: int = 25  # a task computes one block = one chunk of every score array
+    block_constraints: int = 60
+
+
+@dataclass
+class SlurmConfig:
+    queue: str | None = None
+    account: str | None = None
+    cores: int = 1
+    memory: str = "4GB"
+    walltime: str = "04:00:00"
+
+
+@dataclass
+class ClusterConfig:
+    kind: ClusterKind = ClusterKind.local
+    n_workers: int | None = None  # local: one per core when null; slurm: processes in total
+    address: str | None = None  # kind=address: tcp://host:8786
+    retries: int = 3  # per task, after a worker dies or a task raises
+    slurm: SlurmConfig = field(default_factory=SlurmConfig)
+
+
+@dataclass
+class EvaluateConfig:
+    selectors: list[str] = field(
+        default_factory=lambda: ["box", "static", "rand", "doo", "pembo", "oracle",
+                                 "rawplanner"])
+    k: int | None = None  # tries per held-out instance; null = all m
+    c: float = 1.96
+    failure_rule: str = "magnitude"
+
+
+@dataclass
+class Config:
+    stage: Stage = Stage.generate
+    seed: int = 0
+    domain: Any = MISSING
+    planner: PlannerSettings = field(default_factory=PlannerSettings)
+    cluster: ClusterConfig = field(default_factory=ClusterConfig)
+    instances: InstancesConfig = field(default_factory=InstancesConfig)
+    constraints: ConstraintsConfig = field(default_factory=ConstraintsConfig)
+    store: StoreConfig = field(default_factory=StoreConfig)
+    evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
+    progress: bool = True  # the progress bar (off for logs and tests)
+
+
+def register_configs() -> None:
+    """Put the schemas in Hydra's ConfigStore (the YAML files name them in ``defaults``)."""
+    from hydra.core.config_store import ConfigStore
+
+    from pipeline.domains import DOMAINS, domain_class
+
+    cs = ConfigStore.instance()
+    cs.store(name="config_schema", node=Config)
+    cs.store(group="planner", name="planner_schema", node=PlannerSettings)
+    cs.store(group="cluster", name="cluster_schema", node=ClusterConfig)
+    for name in DOMAINS:
+        cs.store(group="domain", name=f"{name}_schema", node=domain_class(name).config_class)
+
+
+def load_yaml_config(group: str, name: str, schema: type, overrides: dict | None = None):
+    """``conf/<group>/<name>.yaml`` checked against ``schema``, with ``overrides``, as a
+    ``schema`` instance.  The same composition Hydra does, without Hydra."""
+    path = CONF_DIR / group / f"{name}.yaml"
+    if not path.is_file():
+        raise ValueError(f"no {group} config {name!r}: {path} does not exist")
+    raw = OmegaConf.load(path)
+    raw.pop("defaults", None)
+    try:
+        node = OmegaConf.merge(OmegaConf.structured(schema), raw, OmegaConf.create(overrides or {}))
+        return OmegaConf.to_object(node)
+    except OmegaConfBaseException as exc:
+        raise ValueError(f"{group} config {name!r}: {exc}".splitlines()[0]) from None
+
+
+def planner_settings(planner=None) -> PlannerSettings:
+    """A PlannerSettings from a name (conf/planner/<name>.yaml), a mapping or itself."""
+    if planner is None:
+        planner = "rrt_connect"
+    if isinstance(planner, PlannerSettings):
+        return planner
+    if isinstance(planner, str):
+        return load_yaml_config("planner", planner, PlannerSettings)
+    return load_yaml_config("planner", planner.get("name", "rrt_connect"), PlannerSettings,
+                            dict(planner))
+
+
+#: The keys that determine a store's contents (a store refuses to continue under others).
+IDENTITY_KEYS = ("domain", "planner", "seed", "instances", "constraints",
+                 "store.block_instances", "store.block_constraints")
+
+
+def identity(cfg) -> dict:
+    """The part of a resolved config that determines the score matrix, as plain data."""
+    plain = OmegaConf.to_container(OmegaConf.create(cfg) if not OmegaConf.is_config(cfg) else cfg,
+                                   resolve=True, enum_to_str=True)
+    out = {}
+    for key in IDENTITY_KEYS:
+        node = plain
+        for part in key.split("."):
+            node = node[part]
+        out[key] = node
+    return out
+
+
+def config_hash(ident: dict) -> str:
+    return hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def flatten(tree, prefix: str = "") -> dict[str, Any]:
+    """{"a": {"b": 1}} -> {"a.b": 1}: how differing keys are named in errors."""
+    if isinstance(tree, dict):
+        out = {}
+        for k, v in tree.items():
+            out.update(flatten(v, f"{prefix}{k}."))
+        return out
+    return {prefix[:-1]: tree}
+
+
+def differing_keys(stored: dict, wanted: dict) -> list[str]:
+    a, b = flatten(stored), flatten(wanted)
+    return sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k))

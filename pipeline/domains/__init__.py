@@ -1,0 +1,43 @@
+"""Planning domains: one module (a Domain subclass and its config dataclass) and one YAML
+file under ``conf/domain/`` each.  ``load_domain`` is how Python code gets one; Hydra
+composes the same YAML files for the pipeline, so both see the same parameters.
+
+Adding a domain: write ``pipeline/domains/<name>.py`` with a ``Domain`` subclass (see
+:mod:`pipeline.domains.planar`, the smallest complete example), add it to ``DOMAINS``
+below and add ``conf/domain/<name>.yaml``.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from pipeline.domains.base import ConstraintSet, Domain, InstanceError, RawResult
+
+#: name -> "module:class"; imported on first use so that unused simulators stay unloaded.
+DOMAINS = {
+    "planar": "pipeline.domains.planar:PlanarDomain",
+}
+
+
+def domain_class(name: str) -> type[Domain]:
+    if name not in DOMAINS:
+        raise ValueError(f"unknown domain {name!r}; known domains: {', '.join(sorted(DOMAINS))}")
+    module, cls = DOMAINS[name].split(":")
+    return getattr(importlib.import_module(module), cls)
+
+
+def load_domain(name: str, planner=None, **overrides) -> Domain:
+    """The domain ``name`` with parameters from ``conf/domain/<name>.yaml`` and ``overrides``.
+
+    ``planner`` is a planner name (``conf/planner/<name>.yaml``), a mapping of planner
+    settings, or a :class:`pipeline.planning.PlannerSettings`; default ``rrt_connect``.
+    """
+    from pipeline import configs
+
+    cls = domain_class(name)
+    config = configs.load_yaml_config("domain", name, cls.config_class, overrides)
+    return cls(config, configs.planner_settings(planner))
+
+
+__all__ = ["DOMAINS", "ConstraintSet", "Domain", "InstanceError", "RawResult", "domain_class",
+           "load_domain"]

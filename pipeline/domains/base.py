@@ -1,0 +1,122 @@
+"""The domain API every planning domain implements (names are a contract)."""
+
+from __future__ import annotations
+
+import abc
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from pipeline.planning import PlannerSettings, PlanResult
+
+
+class InstanceError(ValueError):
+    """An instance spec with a missing or malformed field."""
+
+
+@dataclass(frozen=True, eq=False)
+class ConstraintSet:
+    """Candidate solution constraints θ: one feature row each (DOO's metric space)."""
+
+    features: np.ndarray  # (m, p) float
+    source_instance: np.ndarray  # (m,) int: the instance a constraint came from, -1 if none
+
+    def __post_init__(self):
+        if self.features.ndim != 2 or self.source_instance.shape != self.features.shape[:1]:
+            raise ValueError("ConstraintSet: features must be (m, p), source_instance (m,)")
+
+    @property
+    def m(self) -> int:
+        return self.features.shape[0]
+
+
+@dataclass(eq=False)
+class RawResult:
+    """RAWPLANNER on one instance: its plan, the constraint it ended up using (a feature
+    row, NaN when it failed), how many constraints it tried and its total time."""
+
+    plan: PlanResult
+    constraint: np.ndarray
+    tries: int
+    time: float
+
+
+class Domain(abc.ABC):
+    """A family of planning problems ω and their solution constraints θ.
+
+    Subclasses set ``name``, ``config_class`` (a dataclass, the schema of
+    ``conf/domain/<name>.yaml``) and ``fixed_constraints`` (True when Θ is a fixed set,
+    False when it is extracted from RAWPLANNER's solutions).
+    """
+
+    name: ClassVar[str]
+    config_class: ClassVar[type]
+    fixed_constraints: ClassVar[bool]
+
+    def __init__(self, config, planner: PlannerSettings):
+        self.config = config
+        self.planner = planner
+
+    @property
+    def n_features(self) -> int:
+        """Length of a constraint's feature row."""
+        raise NotImplementedError
+
+    @abc.abstractmethod
+    def sample_instance(self, seed: int) -> dict[str, Any]:
+        """A JSON-serialisable instance spec, fully determined by ``seed``."""
+
+    @abc.abstractmethod
+    def check_instance(self, instance: dict[str, Any]) -> Any:
+        """Validate a spec; return the domain's parsed form or raise InstanceError."""
+
+    @abc.abstractmethod
+    def constraints(self, extracted: ConstraintSet | None = None) -> ConstraintSet:
+        """Θ̂: the fixed set, or the constraints ``extracted`` from raw solutions."""
+
+    @abc.abstractmethod
+    def plan(self, instance, constraint, seed: int = 0) -> PlanResult:
+        """π(ω, θ): one planning call."""
+
+    @abc.abstractmethod
+    def raw_plan(self, instance, seed: int = 0) -> RawResult:
+        """RAWPLANNER: the unguided planner."""
+
+    @abc.abstractmethod
+    def build_scene(self, instance):
+        """A scene with ``client_id``, ``robot_ids`` and ``set_configuration(q)``."""
+
+    @abc.abstractmethod
+    def render(self, instance, plan: PlanResult | None = None, path: str | Path = "scene.png",
+               constraint=None) -> Path:
+        """Write a PNG of the instance (and the plan, when given); return its path."""
+
+
+def require(instance: dict, key: str, kind: type | tuple[type, ...]):
+    """``instance[key]``, checked to be of ``kind``; InstanceError naming the key if not."""
+    if not isinstance(instance, dict):
+        raise InstanceError(f"instance spec must be a JSON object, got {type(instance).__name__}")
+    if key not in instance:
+        raise InstanceError(f"instance spec: missing field {key!r}")
+    value = instance[key]
+    if isinstance(value, bool) or not isinstance(value, kind):  # no field is boolean
+        raise InstanceError(f"instance spec: field {key!r} has the wrong type "
+                            f"({type(value).__name__})")
+    return value
+
+
+def finite_rows(value, key: str, width: int) -> np.ndarray:
+    """A list of ``width``-number lists, all finite, as an (k, width) array."""
+    try:
+        arr = np.asarray(value, dtype=float).reshape(-1, width) if len(value) else \
+            np.empty((0, width))
+    except (TypeError, ValueError):
+        raise InstanceError(f"instance spec: field {key!r} must be a list of "
+                            f"{width}-number lists") from None
+    if len(arr) != len(value) or not all(math.isfinite(x) for x in arr.ravel()):
+        raise InstanceError(f"instance spec: field {key!r} must be a list of finite "
+                            f"{width}-number lists")
+    return arr

@@ -1,0 +1,218 @@
+"""``planar``: a disc robot crossing a room with random box obstacles.
+
+The smallest complete domain, milliseconds per call, so that tests and the quick start
+exercise the whole pipeline; also the worked example of adding a domain.  The start and
+goal are fixed; a solution constraint θ is a via-point the robot must pass through, and
+π(ω, θ) plans start → θ → goal with RRT-Connect (each leg shortcut on its own, so the path
+keeps passing θ).  RAWPLANNER samples via-points uniformly until one works, and the
+via-point it used is the constraint extracted from its solution.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.domains.base import (
+    ConstraintSet,
+    Domain,
+    InstanceError,
+    RawResult,
+    finite_rows,
+    require,
+)
+from pipeline.planning import PlanResult, RRTConnect, Status
+from pipeline.planning.result import path_length
+
+
+@dataclass
+class PlanarConfig:
+    """Schema of ``conf/domain/planar.yaml``."""
+
+    name: str = "planar"
+    size: float = 10.0  # the room is [0, size]²
+    robot_radius: float = 0.25
+    start: list[float] = field(default_factory=lambda: [1.0, 5.0])
+    goal: list[float] = field(default_factory=lambda: [9.0, 5.0])
+    obstacles_min: int = 4
+    obstacles_max: int = 12
+    obstacle_size_min: float = 0.5
+    obstacle_size_max: float = 3.0
+    raw_max_tries: int = 50  # via-points RAWPLANNER draws before giving up
+
+
+@dataclass(frozen=True)
+class PlanarInstance:
+    seed: int
+    boxes: np.ndarray  # (k, 4): centre x, centre y, width, height
+
+
+class PlanarScene:
+    """The room as plain geometry (no simulator): the robot's centre is the configuration."""
+
+    client_id = None
+    robot_ids = ()
+
+    def __init__(self, boxes: np.ndarray, radius: float):
+        self.lo = boxes[:, :2] - boxes[:, 2:] / 2
+        self.hi = boxes[:, :2] + boxes[:, 2:] / 2
+        self.radius = radius
+        self.configuration = None
+
+    def set_configuration(self, q) -> None:
+        self.configuration = np.asarray(q, float)
+
+    def collides(self, states: np.ndarray) -> np.ndarray:
+        """(k,) bool: the disc at each state overlaps a box."""
+        below = self.lo[None] - states[:, None]
+        above = states[:, None] - self.hi[None]
+        gap = np.maximum(np.maximum(below, above), 0.0)
+        return np.any(np.einsum("kbi,kbi->kb", gap, gap) < self.radius**2, axis=1)
+
+    def check(self, states: np.ndarray) -> tuple[bool, int]:
+        """The planner's checker: free?, and how many states a sequential check would use."""
+        hits = np.flatnonzero(self.collides(states))
+        return (True, len(states)) if hits.size == 0 else (False, int(hits[0]) + 1)
+
+
+class PlanarDomain(Domain):
+    name = "planar"
+    config_class = PlanarConfig
+    fixed_constraints = False
+
+    def __init__(self, config: PlanarConfig, planner):
+        super().__init__(config, planner)
+        c = config
+        if not (c.size > 0 and 0 < c.robot_radius < c.size / 4):
+            raise ValueError("domain: need size > 0 and 0 < robot_radius < size / 4")
+        if not 0 <= c.obstacles_min <= c.obstacles_max:
+            raise ValueError("domain: need 0 <= obstacles_min <= obstacles_max")
+        if not 0 < c.obstacle_size_min <= c.obstacle_size_max:
+            raise ValueError("domain: need 0 < obstacle_size_min <= obstacle_size_max")
+        if c.raw_max_tries < 1:
+            raise ValueError("domain.raw_max_tries must be >= 1")
+        self.start = np.asarray(c.start, float)
+        self.goal = np.asarray(c.goal, float)
+        self.lower = np.full(2, c.robot_radius)
+        self.upper = np.full(2, c.size - c.robot_radius)
+        for key, q in (("start", self.start), ("goal", self.goal)):
+            if q.shape != (2,) or np.any(q < self.lower) or np.any(q > self.upper):
+                raise ValueError(f"domain.{key} must be 2 numbers inside the room")
+        self.rrt = RRTConnect(self.lower, self.upper, planner)
+
+    @property
+    def n_features(self) -> int:
+        return 2
+
+    def sample_instance(self, seed: int) -> dict:
+        c = self.config
+        rng = np.random.default_rng(int(seed))
+        boxes = []
+        target = int(rng.integers(c.obstacles_min, c.obstacles_max + 1))
+        clearance = c.robot_radius * 1.5
+        for _ in range(100 * (target + 1)):
+            if len(boxes) == target:
+                break
+            w, h = rng.uniform(c.obstacle_size_min, c.obstacle_size_max, 2)
+            x, y = rng.uniform(0.0, c.size, 2)
+            box = np.array([[x, y, w, h]])
+            near = PlanarScene(box, clearance).collides(np.stack([self.start, self.goal]))
+            if not near.any():
+                boxes.append([round(float(v), 6) for v in (x, y, w, h)])
+        return {"domain": self.name, "seed": int(seed), "obstacles": boxes}
+
+    def check_instance(self, instance) -> PlanarInstance:
+        if isinstance(instance, PlanarInstance):
+            return instance
+        seed = require(instance, "seed", int)
+        boxes = finite_rows(require(instance, "obstacles", list), "obstacles", 4)
+        if np.any(boxes[:, 2:] <= 0):
+            raise InstanceError("instance spec: field 'obstacles' has a box with a size <= 0")
+        return PlanarInstance(seed=seed, boxes=boxes)
+
+    def constraints(self, extracted: ConstraintSet | None = None) -> ConstraintSet:
+        if extracted is None:
+            raise ValueError("planar constraints come from RAWPLANNER's solutions: "
+                             "pass the extracted ones")
+        keep = np.all(np.isfinite(extracted.features), axis=1)
+        return ConstraintSet(extracted.features[keep], extracted.source_instance[keep])
+
+    def via_point(self, constraint) -> np.ndarray:
+        via = np.asarray(constraint, dtype=float)
+        if via.shape != (2,) or not np.all(np.isfinite(via)):
+            raise ValueError(f"planar constraint must be 2 finite numbers, got {constraint!r}")
+        return via
+
+    def plan(self, instance, constraint, seed: int = 0) -> PlanResult:
+        t0 = time.perf_counter()
+        inst = self.check_instance(instance)
+        via = self.via_point(constraint)
+        try:
+            return self._plan_via(inst, via, int(seed), t0)
+        except Exception as exc:  # a planner failure is an outcome, not a crash
+            return PlanResult(Status.ERROR, error=repr(exc), time=time.perf_counter() - t0)
+
+    def _plan_via(self, inst: PlanarInstance, via: np.ndarray, seed: int, t0: float) -> PlanResult:
+        scene = self.build_scene(inst)
+        budget = self.rrt.budget(scene.check)
+        legs = []
+        for leg, (a, b) in enumerate(((self.start, via), (via, self.goal))):
+            result = self.rrt.plan(a, b, budget, seed=2 * seed + leg)
+            if not result.feasible:
+                result.checks, result.time = budget.used, time.perf_counter() - t0
+                return result
+            legs.append(result.path)
+        path = np.concatenate([legs[0], legs[1][1:]])
+        return PlanResult(Status.OK, path=path, length=path_length(path), checks=budget.used,
+                          time=time.perf_counter() - t0)
+
+    def raw_plan(self, instance, seed: int = 0) -> RawResult:
+        t0 = time.perf_counter()
+        inst = self.check_instance(instance)
+        rng = np.random.default_rng([int(seed), 2])
+        checks = 0
+        plan = PlanResult(Status.GOAL_IN_COLLISION)
+        for tries in range(1, self.config.raw_max_tries + 1):
+            via = rng.uniform(self.lower, self.upper)
+            plan = self.plan(inst, via, seed=int(seed) * self.config.raw_max_tries + tries)
+            checks += plan.checks
+            if plan.feasible:
+                break
+        plan.checks, plan.time = checks, time.perf_counter() - t0
+        used = via if plan.feasible else np.full(2, np.nan)
+        return RawResult(plan=plan, constraint=used, tries=tries, time=plan.time)
+
+    def build_scene(self, instance) -> PlanarScene:
+        return PlanarScene(self.check_instance(instance).boxes, self.config.robot_radius)
+
+    def render(self, instance, plan: PlanResult | None = None, path="planar.png",
+               constraint=None) -> Path:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+        from matplotlib.patches import Circle, Rectangle
+
+        inst = self.check_instance(instance)
+        fig, ax = plt.subplots(figsize=(4, 4), dpi=100)
+        try:
+            ax.set_xlim(0, self.config.size)
+            ax.set_ylim(0, self.config.size)
+            ax.set_aspect("equal")
+            for x, y, w, h in inst.boxes:
+                ax.add_patch(Rectangle((x - w / 2, y - h / 2), w, h, color="0.45"))
+            for q, colour in ((self.start, "tab:green"), (self.goal, "tab:red")):
+                ax.add_patch(Circle(q, self.config.robot_radius, color=colour))
+            if constraint is not None:
+                ax.plot(*self.via_point(constraint), marker="x", color="tab:orange", ms=10)
+            if plan is not None and plan.feasible:
+                ax.plot(plan.path[:, 0], plan.path[:, 1], color="tab:blue", lw=2)
+            ax.set_title(f"planar instance {inst.seed}")
+            out = Path(path)
+            fig.savefig(out)
+        finally:
+            plt.close(fig)
+        return out

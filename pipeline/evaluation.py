@@ -1,0 +1,95 @@
+"""Stage ``evaluate``: box_core's LOOCV on a finished score store, results written back."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+
+import box_core
+from pipeline.store import StoreError
+from pipeline.tables import summary_table
+
+#: Measured outside the LOOCV: RAWPLANNER's time comes from stage ``raw``.
+RAWPLANNER = "rawplanner"
+
+
+def load_matrix(store):
+    """(scores, feasible, times, features) of a finished store, as box_core wants them."""
+    feasible = store.array("scores/feasible")[...]
+    length = store.array("scores/length")[...]
+    times = store.array("scores/time")[...]
+    if np.isnan(times).any():
+        raise StoreError(f"{store.path}: scores/time has missing entries; is stage scores "
+                         "complete?")
+    scores = np.where(feasible, -np.nan_to_num(length, nan=0.0), 0.0)
+    if np.isnan(length[feasible]).any():
+        raise StoreError(f"{store.path}: a feasible entry has no path length (damaged store?)")
+    return scores, feasible, times, store.array("constraints/theta")[...]
+
+
+def evaluate(run) -> None:
+    store = run.store
+    settings = run.plain["evaluate"]
+    info = store.stage_info("evaluate")
+    if info is not None and info.get("settings") == settings:
+        run.say("evaluate: already complete with these settings; nothing to do")
+        print_stored_summary(run)
+        return
+    names = list(dict.fromkeys(settings["selectors"]))
+    with_raw = RAWPLANNER in names
+    names = [s for s in names if s != RAWPLANNER]
+    scores, feasible, times, theta = load_matrix(store)
+    params = {"box": {"c": settings["c"]}} if "box" in names else {}
+    try:
+        result = box_core.loocv(scores, times=times, feasible=feasible, features=theta,
+                                selectors=names, k=settings["k"], seed=run.cfg.seed,
+                                params=params, failure_rule=settings["failure_rule"])
+    except ValueError as exc:
+        raise ValueError(f"evaluate: {exc}") from None
+    others = {}
+    if with_raw:
+        raw_ok = store.array("raw/feasible")[...]
+        others[RAWPLANNER] = np.where(raw_ok, store.array("raw/time")[...], np.nan)
+    summary = result.summary(others=others)
+    store.forget_stage("evaluate")  # derived data: replaced as a whole
+    shutil.rmtree(store.path / "evaluation", ignore_errors=True)
+    _write(store, result, others)
+    store.mark_finished("evaluate", settings=settings, failure_value=result.failure_value,
+                        summary=summary.to_dict())
+    n, m = scores.shape
+    run.console.print(summary_table(summary, title=f"{run.path.name}  ({n} x {m})"))
+
+
+def _write(store, result, others) -> None:
+    inst, step, time = "instance", "step", "time"
+    n, k = result.order[result.selectors[0]].shape
+    b = max(1, min(n, 1000))
+    store.create("evaluation/time_grid", result.time_grid.shape, result.time_grid.shape,
+                 "float64", np.nan, (time,))[...] = result.time_grid
+    store.create("evaluation/eligible", (n,), (b,), "bool", False, (inst,))[...] = result.eligible
+    store.create("evaluation/optimal_score", (n,), (b,), "float64", np.nan,
+                 (inst,))[...] = result.optimal_score
+    for name in result.selectors:
+        g = f"evaluation/{name}"
+        store.create(f"{g}/order", (n, k), (b, k), "int32", -1, (inst, step))[...] = \
+            result.order[name]
+        store.create(f"{g}/first_feasible_step", (n,), (b,), "int32", -1,
+                     (inst,))[...] = result.first_feasible_step[name]
+        store.create(f"{g}/first_feasible_time", (n,), (b,), "float64", np.nan,
+                     (inst,))[...] = result.first_feasible_time[name]
+        curve = result.best_score[name]
+        store.create(f"{g}/best_score", curve.shape, (b, curve.shape[1]), "float64", np.nan,
+                     (inst, time))[...] = curve
+    for name, values in others.items():
+        store.create(f"evaluation/{name}/first_feasible_time", (n,), (b,), "float64", np.nan,
+                     (inst,))[...] = values
+
+
+def print_stored_summary(run) -> None:
+    info = run.store.stage_info("evaluate") or {}
+    summary = info.get("summary")
+    if summary:
+        for line in summary.get("selectors", []):
+            run.say(f"  {line['name']:<11} mean time to first feasible "
+                    f"{line['mean_time']}  x {summary['reference']}: {line['speedup']}")
