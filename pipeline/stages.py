@@ -161,9 +161,6 @@ def stage_instances(run: Run) -> None:
 def stage_raw(run: Run) -> None:
     run.require("instances", "raw")
     store, n, b = run.store, run.cfg.instances.n, run.cfg.store.block_instances
-    if store.stage_info("raw"):
-        run.say("raw: already complete; nothing to do")
-        return
     if not store.has("raw/done"):
         p = run.domain.n_features
         store.create("raw/tries", (n,), (b,), "int32", 0, ("instance",))
@@ -171,6 +168,10 @@ def stage_raw(run: Run) -> None:
                      description="constraint extracted from the raw solution (NaN: none)")
         store.create_results("raw", (n,), (b,), ("instance",))
     pending = run._pending("raw", (b,))
+    if not pending and store.stage_info("raw"):
+        run.say("raw: already complete; nothing to do")
+        return
+    store.forget_stage("raw")
     tasks = []
     for (bi,) in pending:
         rows = (bi * b, min((bi + 1) * b, n))
@@ -224,12 +225,13 @@ def stage_scores(run: Run) -> None:
     store = run.store
     n, m = run.cfg.instances.n, store.stage_info("constraints")["m"]
     bi, bj = run.cfg.store.block_instances, run.cfg.store.block_constraints
-    if store.stage_info("scores"):
-        run.say(f"scores: already complete ({n} x {m}); nothing to do")
-        return
     if not store.has("scores/done"):
         store.create_results("scores", (n, m), (bi, bj), ("instance", "constraint"))
     pending = run._pending("scores", (bi, bj))
+    if not pending and store.stage_info("scores"):
+        run.say(f"scores: already complete ({n} x {m}); nothing to do")
+        return
+    store.forget_stage("scores")
     tasks = []
     for i, j in pending:
         rows, cols = (i * bi, min((i + 1) * bi, n)), (j * bj, min((j + 1) * bj, m))

@@ -100,9 +100,11 @@ def git_revision() -> str | None:
 
 
 class StoreLock:
-    """An exclusive lock on a store for one run (POSIX ``lockf``: released by the kernel
-    when the holder dies, so a killed run never keeps it).  The lock file sits next to the
-    store (``<store>.lock``): inside, Zarr would warn about a foreign object."""
+    """An exclusive lock on a store for one run (``flock``: released by the kernel when the
+    holder dies, so a killed run never keeps it; unlike POSIX record locks it is not
+    dropped when the same process closes another descriptor of the file).  The lock file
+    sits next to the store (``<store>.lock``): inside, Zarr would warn about a foreign
+    object."""
 
     def __init__(self, path: Path):
         path = Path(path)
@@ -112,7 +114,7 @@ class StoreLock:
     def acquire(self) -> None:
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
-            fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             holder = os.read(fd, 4096).decode(errors="replace").strip() or "another process"
             os.close(fd)
@@ -133,7 +135,7 @@ class StoreLock:
             return None
         fd = os.open(self.path, os.O_RDWR)
         try:
-            fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             return os.read(fd, 4096).decode(errors="replace").strip() or "another process"
         finally:

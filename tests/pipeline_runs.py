@@ -1,0 +1,53 @@
+"""Helpers that run ``python -m pipeline`` the way a user does, on small planar stores."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import zarr
+
+#: A small planar run: 4 x 3 blocks of 6 x 5 entries (24 x 15 = 360 planning calls).
+SMALL = ("domain=planar", "instances.n=24", "constraints.m=15", "store.block_instances=6",
+         "store.block_constraints=5", "progress=false", "cluster.n_workers=2",
+         "planner.max_checks=4000")
+
+
+def command(store: Path, *overrides: str) -> list[str]:
+    return [sys.executable, "-m", "pipeline", *SMALL, f"store.path={store}", *overrides]
+
+
+def env() -> dict:
+    return {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+
+
+def run(store: Path, *overrides: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    return subprocess.run(command(store, *overrides), capture_output=True, text=True,
+                          cwd=cwd or store.parent, env=env(), timeout=600)
+
+
+def start(store: Path, *overrides: str, cwd: Path | None = None) -> subprocess.Popen:
+    return subprocess.Popen(command(store, *overrides), stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, cwd=cwd or store.parent,
+                            env=env(), start_new_session=True)
+
+
+def matrix(store: Path) -> dict[str, np.ndarray]:
+    """The deterministic part of D (everything but times)."""
+    g = zarr.open_group(store, mode="r", use_consolidated=False)
+    return {name: g[f"scores/{name}"][...] for name in ("score", "feasible", "status", "checks",
+                                                         "length")}
+
+
+def done_count(store: Path) -> int:
+    try:
+        return int(zarr.open_array(store / "scores" / "done", mode="r")[...].sum())
+    except Exception:  # noqa: BLE001 (not created yet)
+        return 0
+
+
+def same_matrix(a: dict, b: dict) -> bool:
+    return all(a[k].tobytes() == b[k].tobytes() for k in a)
