@@ -47,12 +47,12 @@ class ClusterKind(enum.Enum):
 
 @dataclass
 class InstancesConfig:
-    n: int = 200
+    n: int = 400
 
 
 @dataclass
 class ConstraintsConfig:
-    m: int = 100  # subsampled (seeded) from the candidates when there are more
+    m: int = 200  # subsampled (seeded) from the candidates when there are more
 
 
 @dataclass
