@@ -119,3 +119,16 @@ def test_compose_gives_validated_defaults():
     other = dict(ident, seed=4)
     assert configs.differing_keys(ident, other) == ["seed"]
     assert configs.config_hash(ident) != configs.config_hash(other)
+
+
+def test_a_sweep_gives_one_store_per_run_under_data(tmp_path):
+    cmd = [sys.executable, "-m", "pipeline", "-m", "stage=instances", "seed=0,1",
+           "instances.n=5", "progress=false"]
+    res = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, env=pr.env(),
+                         timeout=300)
+    assert res.returncode == 0, res.stderr
+    stores = sorted(p.name for p in (tmp_path / "data").glob("*.zarr"))
+    assert stores == ["planar-rrt_connect-seed0.zarr", "planar-rrt_connect-seed1.zarr"]
+    seeds = [json.loads((tmp_path / "data" / s / "zarr.json").read_text())
+             ["attributes"]["identity"]["seed"] for s in stores]
+    assert seeds == [0, 1]
