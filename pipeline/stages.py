@@ -25,6 +25,7 @@ from pipeline.store import (
     ScoreStore,
     StoreError,
     StoreLock,
+    block_region,
     check_is_ours,
     default_path,
 )
@@ -106,22 +107,15 @@ class Run:
                              f"(run stage={stage}, or stage=generate for all of them)")
 
     # -- helpers -----------------------------------------------------------------------
-    def _pending(self, group: str, chunk_shape) -> list[tuple[int, ...]]:
+    def _pending(self, group: str) -> list[tuple[int, ...]]:
         """Chunk indices of ``group`` that still need computing: not done, or done but
         corrupted (those are un-marked here, then recomputed)."""
-        done = self.store.done(group)
-        grid = [range(-(-s // c)) for s, c in zip(done.shape, chunk_shape, strict=True)]
-        finished, pending = [], []
-        for block in np.ndindex(*[len(g) for g in grid]):
-            region = tuple(slice(b * c, (b + 1) * c) for b, c in zip(block, chunk_shape,
-                                                                     strict=True))
-            (finished if done[region].all() else pending).append(block)
+        finished, pending = self.store.blocks(group)
         names = [n for n in RESULT_COLUMNS if n != "time"]
         bad = self.store.corrupted_blocks(group, names + ["done"], finished)
+        chunks = self.store.array(f"{group}/done").chunks
         for block in bad:
-            region = tuple(slice(b * c, (b + 1) * c) for b, c in zip(block, chunk_shape,
-                                                                     strict=True))
-            self.store.set_done(group, region, False)
+            self.store.set_done(group, block_region(block, chunks), False)
         if bad:
             self.say(f"[yellow]{group}: {len(bad)} corrupted block(s) found; recomputing them")
         return sorted(pending + bad)
@@ -167,7 +161,7 @@ def stage_raw(run: Run) -> None:
         store.create("raw/constraint", (n, p), (b, p), "float64", np.nan, ("instance", "feature"),
                      description="constraint extracted from the raw solution (NaN: none)")
         store.create_results("raw", (n,), (b,), ("instance",))
-    pending = run._pending("raw", (b,))
+    pending = run._pending("raw")
     if not pending and store.stage_info("raw"):
         run.say("raw: already complete; nothing to do")
         return
@@ -227,7 +221,7 @@ def stage_scores(run: Run) -> None:
     bi, bj = run.cfg.store.block_instances, run.cfg.store.block_constraints
     if not store.has("scores/done"):
         store.create_results("scores", (n, m), (bi, bj), ("instance", "constraint"))
-    pending = run._pending("scores", (bi, bj))
+    pending = run._pending("scores")
     if not pending and store.stage_info("scores"):
         run.say(f"scores: already complete ({n} x {m}); nothing to do")
         return

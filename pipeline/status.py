@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 import zarr
 from rich.console import Console
 from rich.table import Table
@@ -20,17 +19,6 @@ def _arrays(store: ScoreStore, group: str):
         return []
     g = zarr.open_group(store.path / group, mode="r", use_consolidated=False)
     return sorted(g.arrays(), key=lambda kv: kv[0])
-
-
-def _done_blocks(store: ScoreStore, group: str, chunks) -> list[tuple[int, ...]]:
-    done = store.done(group)
-    grid = [-(-s // c) for s, c in zip(done.shape, chunks, strict=True)]
-    out = []
-    for block in np.ndindex(*grid):
-        region = tuple(slice(b * c, (b + 1) * c) for b, c in zip(block, chunks, strict=True))
-        if done[region].all():
-            out.append(block)
-    return out
 
 
 def collect(path) -> dict:
@@ -50,8 +38,7 @@ def collect(path) -> dict:
         report["stages"][stage] = entry
         corrupted: dict[str, int] = {}
         if has_done:
-            chunks = store.array(f"{group}/done").chunks
-            blocks = _done_blocks(store, group, chunks)
+            blocks, _ = store.blocks(group)
             for name, _ in _arrays(store, group):
                 corrupted[name] = len(store.corrupted_blocks(group, [name], blocks))
         for name, arr in _arrays(store, group):

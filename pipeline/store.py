@@ -71,6 +71,11 @@ RESULT_COLUMNS = {
 }
 
 
+def block_region(block: tuple[int, ...], chunks: tuple[int, ...]) -> tuple[slice, ...]:
+    """The index region of chunk ``block`` (clipped by numpy at the array's edge)."""
+    return tuple(slice(b * c, (b + 1) * c) for b, c in zip(block, chunks, strict=True))
+
+
 def now() -> str:
     return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
 
@@ -264,6 +269,15 @@ class ScoreStore:
 
     def done(self, group: str) -> np.ndarray:
         return self.array(f"{group}/done")[...]
+
+    def blocks(self, group: str) -> tuple[list[tuple[int, ...]], list[tuple[int, ...]]]:
+        """(finished, pending) chunk indices of ``group`` according to its ``done`` mask."""
+        mask = self.array(f"{group}/done")
+        done = mask[...]
+        finished, pending = [], []
+        for block in np.ndindex(*mask.cdata_shape):
+            (finished if done[block_region(block, mask.chunks)].all() else pending).append(block)
+        return finished, pending
 
     def set_done(self, group: str, region: tuple[slice, ...], value: bool = True) -> None:
         self.array(f"{group}/done", mode="r+")[region] = value

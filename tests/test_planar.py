@@ -145,3 +145,10 @@ def test_render_writes_a_png(domain, tmp_path):
     out = domain.render(inst, res.plan, path=tmp_path / "scene.png", constraint=res.constraint)
     data = out.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 2000
+
+
+def test_a_budget_spent_on_the_first_leg_is_not_reported_as_a_collision():
+    # the first leg (start -> via) needs more checks than the budget allows
+    small = load_domain("planar", planner={"max_checks": 450, "shortcut_attempts": 0})
+    res = small.plan(EMPTY, [5.0, 5.0], seed=0)
+    assert res.status is Status.BUDGET_EXHAUSTED

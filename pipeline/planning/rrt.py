@@ -163,6 +163,8 @@ class RRTConnect:
         used0 = budget.used
         for q, status in ((start, Status.START_IN_COLLISION), (goal, Status.GOAL_IN_COLLISION)):
             if np.any(q < self.lower) or np.any(q > self.upper) or not budget.states_free(q[None]):
+                if budget.spent:  # an earlier leg used the whole budget: q was never checked
+                    status = Status.BUDGET_EXHAUSTED
                 return self._result(status, budget, used0, t0)
         if np.array_equal(start, goal):
             path = start[None]
