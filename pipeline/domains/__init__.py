@@ -16,6 +16,7 @@ from pipeline.domains.base import ConstraintSet, Domain, InstanceError, RawResul
 #: name -> "module:class"; imported on first use so that unused simulators stay unloaded.
 DOMAINS = {
     "planar": "pipeline.domains.planar:PlanarDomain",
+    "grasp_arm": "pipeline.domains.grasp_arm:GraspArmDomain",
 }
 
 

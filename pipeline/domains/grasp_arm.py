@@ -1,0 +1,366 @@
+"""``grasp_arm`` (paper §V-A): choose an arm and one of its 81 grasps, then plan the arm.
+
+Two Pandas stand side by side on a stand, facing a table with a shelf unit whose board
+blocks approaches from above to whatever lies under it.  The target box lies on the table
+in front of the shelf, on the table under the shelf, or on the shelf board; 0-20 box
+obstacles stand on the same surfaces.  A constraint θ = (arm, grasp): 2 × 81 fixed
+constraints, the grasps generated from the object's geometry (9 approach directions ×
+3 wrist rotations × 3 depths), each with a pre-grasp 10 cm back along the approach.
+π(ω, θ): a collision-free IK solution for the pre-grasp, RRT-Connect from home, bounded
+shortcutting; score = -(joint-space path length).
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pybullet as pb
+
+from pipeline.domains.base import (
+    ConstraintSet,
+    Domain,
+    InstanceError,
+    RawResult,
+    finite_rows,
+    require,
+)
+from pipeline.planning import PlanResult, RRTConnect, Status
+from pipeline.sim import panda as P
+from pipeline.sim.world import add_box, connect, yaw_quaternion
+
+#: name -> (x range, y range, surface height, free height above it)
+SURFACES = {
+    "table_front": ((0.32, 0.50), (-0.55, 0.55), 0.0, 1.0),
+    "under_shelf": ((0.60, 0.76), (-0.50, 0.50), 0.0, 0.28),
+    "shelf_top": ((0.60, 0.76), (-0.50, 0.50), 0.30, 1.0),
+}
+#: the furniture: (full size, centre)
+FURNITURE = (
+    ((0.40, 1.20, 0.50), (-0.05, 0.0, -0.255)),  # stand under both arms
+    ((0.70, 1.40, 0.05), (0.65, 0.0, -0.025)),  # table, top at z = 0
+    ((0.22, 1.10, 0.02), (0.68, 0.0, 0.29)),  # shelf board, top at z = 0.30
+    ((0.22, 0.02, 0.28), (0.68, 0.56, 0.14)),  # shelf side panels
+    ((0.22, 0.02, 0.28), (0.68, -0.56, 0.14)),
+    ((0.02, 1.14, 0.60), (0.80, 0.0, 0.30)),  # shelf back panel
+)
+ARM_BASES = ((0.0, 0.30, 0.0), (0.0, -0.30, 0.0))
+
+
+@dataclass
+class GraspArmConfig:
+    """Schema of ``conf/domain/grasp_arm.yaml``."""
+
+    name: str = "grasp_arm"
+    obstacles_min: int = 0
+    obstacles_max: int = 20
+    obstacle_size: list[float] = field(default_factory=lambda: [0.03, 0.08])  # edge, metres
+    obstacle_height: list[float] = field(default_factory=lambda: [0.05, 0.20])
+    target_size: list[float] = field(default_factory=lambda: [0.04, 0.04, 0.12])
+    pregrasp_offset: float = 0.10
+    ik_restarts: int = 4
+
+
+@dataclass(frozen=True)
+class Grasp:
+    arm: int
+    approach: np.ndarray  # unit vector in the object frame: the direction the hand moves in
+    rotation: float  # about the approach axis, radians
+    depth: float  # TCP offset from the object centre along the approach, metres
+
+    @property
+    def features(self) -> np.ndarray:
+        return np.array([self.arm, *self.approach, self.rotation, self.depth])
+
+
+def grasp_set() -> list[Grasp]:
+    """The 162 constraints: 2 arms × (9 approaches × 3 rotations × 3 depths)."""
+    approaches = [np.array([0.0, 0.0, -1.0])] + [
+        np.array([-np.cos(a), -np.sin(a), 0.0]) for a in np.arange(8) * np.pi / 4]
+    return [Grasp(arm, np.round(d, 12), rot, depth)
+            for arm, d, rot, depth in itertools.product(
+                (0, 1), approaches, (0.0, np.pi / 4, np.pi / 2), (-0.02, 0.0, 0.02))]
+
+
+def hand_orientation(approach: np.ndarray, rotation: float) -> np.ndarray:
+    """Rotation matrix of the TCP frame: z along the approach, x turned by ``rotation``."""
+    z = approach / np.linalg.norm(approach)
+    ref = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x0 = ref - z * (ref @ z)
+    x0 /= np.linalg.norm(x0)
+    y0 = np.cross(z, x0)
+    x = np.cos(rotation) * x0 + np.sin(rotation) * y0
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+def _quaternion(R: np.ndarray) -> np.ndarray:
+    """(x, y, z, w) of a rotation matrix."""
+    w = np.sqrt(max(0.0, 1 + R[0, 0] + R[1, 1] + R[2, 2])) / 2
+    x = np.copysign(np.sqrt(max(0.0, 1 + R[0, 0] - R[1, 1] - R[2, 2])) / 2, R[2, 1] - R[1, 2])
+    y = np.copysign(np.sqrt(max(0.0, 1 - R[0, 0] + R[1, 1] - R[2, 2])) / 2, R[0, 2] - R[2, 0])
+    z = np.copysign(np.sqrt(max(0.0, 1 - R[0, 0] - R[1, 1] + R[2, 2])) / 2, R[1, 0] - R[0, 1])
+    return np.array([x, y, z, w])
+
+
+@dataclass(frozen=True)
+class Box:
+    size: tuple[float, float, float]
+    position: tuple[float, float, float]
+    yaw: float
+
+
+@dataclass(frozen=True)
+class GraspArmInstance:
+    seed: int
+    target: Box
+    obstacles: tuple[Box, ...]
+
+
+class GraspArmScene:
+    """One pybullet client with the furniture, both arms at home and an instance's boxes."""
+
+    def __init__(self, instance: GraspArmInstance | None = None):
+        self.client_id = connect()
+        for size, centre in FURNITURE:
+            add_box(self.client_id, size, centre, rgba=(0.55, 0.45, 0.35, 1.0))
+        self.arms = [P.Panda(self.client_id, base) for base in ARM_BASES]
+        self.robot_ids = tuple(a.body for a in self.arms)
+        self.instance = None
+        self._bodies: list[int] = []
+        self.target_id = None
+        if instance is not None:
+            self.load(instance)
+
+    def load(self, instance: GraspArmInstance) -> None:
+        if self.instance is instance:
+            return
+        for body in self._bodies:
+            pb.removeBody(body, physicsClientId=self.client_id)
+        t = instance.target
+        self.target_id = add_box(self.client_id, t.size, t.position, t.yaw,
+                                 rgba=(0.9, 0.15, 0.1, 1.0))
+        self._bodies = [self.target_id] + [
+            add_box(self.client_id, b.size, b.position, b.yaw, rgba=(0.3, 0.4, 0.7, 1.0))
+            for b in instance.obstacles]
+        for arm in self.arms:
+            arm.set(P.HOME)
+        self.instance = instance
+
+    def set_configuration(self, q, arm: int = 0) -> None:
+        self.arms[arm].set(q)
+
+    def close(self) -> None:
+        pb.disconnect(physicsClientId=self.client_id)
+
+
+def _box(value, key: str) -> Box:
+    if not isinstance(value, dict):
+        raise InstanceError(f"instance spec: {key} must be an object with size, position, yaw")
+    size = finite_rows([require(value, "size", list)], f"{key}.size", 3)[0]
+    pos = finite_rows([require(value, "position", list)], f"{key}.position", 3)[0]
+    yaw = require(value, "yaw", (int, float))
+    if np.any(size <= 0) or not np.isfinite(yaw):
+        raise InstanceError(f"instance spec: {key} needs a positive size and a finite yaw")
+    return Box(tuple(size), tuple(pos), float(yaw))
+
+
+class GraspArmDomain(Domain):
+    name = "grasp_arm"
+    config_class = GraspArmConfig
+    fixed_constraints = True
+
+    def __init__(self, config: GraspArmConfig, planner):
+        super().__init__(config, planner)
+        c = config
+        if not 0 <= c.obstacles_min <= c.obstacles_max:
+            raise ValueError("domain: need 0 <= obstacles_min <= obstacles_max")
+        if c.ik_restarts < 1 or c.pregrasp_offset < 0:
+            raise ValueError("domain: need ik_restarts >= 1 and pregrasp_offset >= 0")
+        self.grasps = grasp_set()
+        self.rrt = RRTConnect(P.LOWER, P.UPPER, planner)
+        self._scene: GraspArmScene | None = None
+        self._parsed: dict[str, GraspArmInstance] = {}
+
+    @property
+    def n_features(self) -> int:
+        return 6
+
+    # -- instances -------------------------------------------------------------------------
+    def sample_instance(self, seed: int) -> dict:
+        c = self.config
+        rng = np.random.default_rng(int(seed))
+        names = list(SURFACES)
+        placed: list[tuple[str, np.ndarray, float]] = []  # surface, centre xy, radius
+
+        def place(size) -> dict | None:
+            for _ in range(200):
+                surface = names[int(rng.integers(len(names)))]
+                (x0, x1), (y0, y1), z, free = SURFACES[surface]
+                if size[2] > free - 0.01:
+                    continue
+                r = float(np.hypot(size[0], size[1]) / 2)
+                xy = np.array([rng.uniform(x0 + r, x1 - r), rng.uniform(y0 + r, y1 - r)])
+                if all(s != surface or np.linalg.norm(xy - p) > r + q + 0.01
+                       for s, p, q in placed):
+                    placed.append((surface, xy, r))
+                    return {"size": [round(float(v), 4) for v in size],
+                            "position": [round(float(xy[0]), 4), round(float(xy[1]), 4),
+                                         round(z + size[2] / 2 + 1e-3, 4)],
+                            "yaw": round(float(rng.uniform(-np.pi, np.pi)), 4),
+                            "surface": surface}
+            return None
+
+        target = place(np.asarray(c.target_size, float))
+        obstacles = []
+        for _ in range(int(rng.integers(c.obstacles_min, c.obstacles_max + 1))):
+            edge = rng.uniform(*c.obstacle_size, 2)
+            box = place(np.array([edge[0], edge[1], rng.uniform(*c.obstacle_height)]))
+            if box is not None:
+                obstacles.append(box)
+        return {"domain": self.name, "seed": int(seed), "target": target,
+                "obstacles": obstacles}
+
+    def check_instance(self, instance) -> GraspArmInstance:
+        if isinstance(instance, GraspArmInstance):
+            return instance
+        seed = require(instance, "seed", int)
+        target = _box(require(instance, "target", dict), "target")
+        obstacles = tuple(_box(o, f"obstacles[{k}]")
+                          for k, o in enumerate(require(instance, "obstacles", list)))
+        return GraspArmInstance(seed, target, obstacles)
+
+    # -- constraints -----------------------------------------------------------------------
+    def constraints(self, extracted: ConstraintSet | None = None) -> ConstraintSet:
+        feats = np.stack([g.features for g in self.grasps])
+        return ConstraintSet(feats, np.full(len(feats), -1))
+
+    def grasp(self, constraint) -> Grasp:
+        """A grasp from its index (0..161) or its feature row."""
+        if isinstance(constraint, int | np.integer):
+            if not 0 <= constraint < len(self.grasps):
+                raise ValueError(f"grasp_arm constraint index {constraint} out of range "
+                                 f"0..{len(self.grasps) - 1}")
+            return self.grasps[int(constraint)]
+        row = np.asarray(constraint, float)
+        index = _feature_index(tuple(np.round(row, 9))) if row.shape == (6,) else None
+        if index is None:
+            raise ValueError(f"grasp_arm constraint {constraint!r} is neither an index nor a "
+                             "grasp's feature row")
+        return self.grasps[index]
+
+    def pregrasp_pose(self, inst: GraspArmInstance, g: Grasp) -> tuple[np.ndarray, np.ndarray]:
+        """World position and quaternion of the TCP at the pre-grasp."""
+        t = inst.target
+        c, s = np.cos(t.yaw), np.sin(t.yaw)
+        R_obj = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        approach = R_obj @ g.approach
+        tcp = np.asarray(t.position) + approach * g.depth
+        pre = tcp - approach * self.config.pregrasp_offset
+        return pre, _quaternion(R_obj @ hand_orientation(g.approach, g.rotation))
+
+    # -- planning --------------------------------------------------------------------------
+    def scene(self, inst: GraspArmInstance) -> GraspArmScene:
+        """The process's cached scene (one pybullet client), loaded with ``inst``."""
+        if self._scene is None:
+            self._scene = GraspArmScene()
+        self._scene.load(inst)
+        return self._scene
+
+    def plan(self, instance, constraint, seed: int = 0) -> PlanResult:
+        t0 = time.perf_counter()
+        inst = self._instance(instance)
+        g = self.grasp(constraint)
+        try:
+            return self._plan(inst, g, int(seed), t0)
+        except Exception as exc:  # a simulator or planner failure is an outcome, not a crash
+            return PlanResult(Status.ERROR, error=repr(exc), time=time.perf_counter() - t0)
+
+    def _instance(self, instance) -> GraspArmInstance:
+        """Parsed once per spec: the pipeline plans all constraints of an instance in a row."""
+        if isinstance(instance, GraspArmInstance):
+            return instance
+        key = repr(instance)
+        if key not in self._parsed:
+            self._parsed = {key: self.check_instance(instance)}
+        return self._parsed[key]
+
+    def _plan(self, inst: GraspArmInstance, g: Grasp, seed: int, t0: float) -> PlanResult:
+        scene = self.scene(inst)
+        arm = scene.arms[g.arm]
+        pos, orn = self.pregrasp_pose(inst, g)
+        if np.linalg.norm(pos - arm.shoulder) > P.REACH:  # out of reach: no IK can exist
+            return PlanResult(Status.NO_IK, time=time.perf_counter() - t0)
+        rng = np.random.default_rng([seed, 7])
+        goal, ik_checks, reached = arm.ik(pos, orn, rng, self.config.ik_restarts)
+        if goal is None:  # no solution at all, or only colliding ones
+            status = Status.GOAL_IN_COLLISION if reached else Status.NO_IK
+            return PlanResult(status, checks=ik_checks, time=time.perf_counter() - t0)
+        budget = self.rrt.budget(arm.check)
+        result = self.rrt.plan(P.HOME, goal, budget, seed=seed)
+        arm.set(P.HOME)
+        result.checks += ik_checks
+        result.time = time.perf_counter() - t0
+        return result
+
+    def raw_plan(self, instance, seed: int = 0) -> RawResult:
+        """RAWPLANNER: (arm, grasp) pairs drawn without replacement until one is feasible."""
+        t0 = time.perf_counter()
+        inst = self._instance(instance)
+        order = np.random.default_rng([int(seed), 2]).permutation(len(self.grasps))
+        checks = 0
+        plan = PlanResult(Status.NO_IK)
+        for tries, j in enumerate(order, start=1):
+            plan = self.plan(inst, int(j), seed=int(seed) + tries)
+            checks += plan.checks
+            if plan.feasible:
+                break
+        plan.checks, plan.time = checks, time.perf_counter() - t0
+        used = self.grasps[int(j)].features if plan.feasible else np.full(6, np.nan)
+        return RawResult(plan=plan, constraint=used, tries=tries, time=plan.time)
+
+    # -- inspection ------------------------------------------------------------------------
+    def build_scene(self, instance) -> GraspArmScene:
+        """A new scene (its own pybullet client) for inspection; close() it when done."""
+        return GraspArmScene(self.check_instance(instance))
+
+    def render(self, instance, plan: PlanResult | None = None, path="grasp_arm.png",
+               constraint=None, width: int = 480, height: int = 360) -> Path:
+        inst = self.check_instance(instance)
+        scene = GraspArmScene(inst)
+        try:
+            if plan is not None and plan.feasible and constraint is not None:
+                scene.set_configuration(plan.path[-1], arm=self.grasp(constraint).arm)
+            c = scene.client_id
+            view = pb.computeViewMatrix([1.7, 0.9, 1.1], [0.45, 0.0, 0.15], [0, 0, 1],
+                                        physicsClientId=c)
+            proj = pb.computeProjectionMatrixFOV(50, width / height, 0.05, 5.0,
+                                                 physicsClientId=c)
+            img = pb.getCameraImage(width, height, view, proj, renderer=pb.ER_TINY_RENDERER,
+                                    physicsClientId=c)
+            rgb = np.reshape(np.asarray(img[2], dtype=np.uint8), (height, width, 4))[..., :3]
+        finally:
+            scene.close()
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        out = Path(path)
+        plt.imsave(out, rgb)
+        return out
+
+
+@functools.lru_cache(maxsize=1)
+def _feature_table() -> dict[tuple, int]:
+    return {tuple(np.round(g.features, 9)): k for k, g in enumerate(grasp_set())}
+
+
+def _feature_index(row: tuple) -> int | None:
+    return _feature_table().get(row)
+
+
+__all__ = ["GraspArmConfig", "GraspArmDomain", "grasp_set", "hand_orientation", "yaw_quaternion"]

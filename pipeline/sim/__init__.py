@@ -1,0 +1,1 @@
+"""pybullet helpers: headless clients, static boxes, the Panda arm (checks and IK)."""

@@ -1,0 +1,112 @@
+"""The Franka Panda in pybullet: fast collision checks and IK with seeded restarts.
+
+Collision check (DESIGN.md §4, the fastest method measured): set all seven joints with one
+``resetJointStatesMultiDof`` call, ``performCollisionDetection``, then look for contacts of
+the arm with penetration (distance < 0).  Self-collision is on, with the link pairs that
+touch at the home configuration or are parent and child filtered out.  The base link does
+not move, so its contacts (with the stand) are ignored.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet as pb
+
+ARM_JOINTS = tuple(range(7))
+FINGER_JOINTS = (9, 10)
+TCP_LINK = 11  # panda_grasptarget: the point between the fingertips
+HOME = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+LOWER = np.array([-2.9671, -1.8326, -2.9671, -3.1416, -2.9671, -0.0873, -2.9671])
+UPPER = np.array([2.9671, 1.8326, 2.9671, 0.0, 2.9671, 3.8223, 2.9671])
+REACH = 0.855  # from the shoulder (joint 2) to the TCP at full stretch, metres
+SHOULDER_HEIGHT = 0.333
+
+
+class Panda:
+    """One Panda arm in ``client``; fingers held open."""
+
+    def __init__(self, client: int, base_position, *, finger_opening: float = 0.04):
+        self.client = client
+        self.base_position = np.asarray(base_position, float)
+        self.body = pb.loadURDF("franka_panda/panda.urdf", basePosition=list(self.base_position),
+                                useFixedBase=True, flags=pb.URDF_USE_SELF_COLLISION,
+                                physicsClientId=client)
+        for j in FINGER_JOINTS:
+            pb.resetJointState(self.body, j, finger_opening, physicsClientId=client)
+        self.set(HOME)
+        self._filter_self_pairs()
+        self.q = HOME.copy()
+
+    @property
+    def shoulder(self) -> np.ndarray:
+        return self.base_position + np.array([0.0, 0.0, SHOULDER_HEIGHT])
+
+    def _filter_self_pairs(self) -> None:
+        c = self.client
+        n = pb.getNumJoints(self.body, physicsClientId=c)
+        parents = {j: pb.getJointInfo(self.body, j, physicsClientId=c)[16] for j in range(n)}
+        pairs = {tuple(sorted((j, p))) for j, p in parents.items()}
+        pb.performCollisionDetection(physicsClientId=c)
+        for pt in pb.getContactPoints(bodyA=self.body, bodyB=self.body, physicsClientId=c):
+            pairs.add(tuple(sorted((pt[3], pt[4]))))
+        # the hand and both fingers touch each other whatever the arm does
+        pairs |= {(8, 9), (8, 10), (9, 10), (7, 9), (7, 10), (6, 8)}
+        for a, b in pairs:
+            pb.setCollisionFilterPair(self.body, self.body, a, b, 0, physicsClientId=c)
+
+    def set(self, q) -> None:
+        pb.resetJointStatesMultiDof(self.body, ARM_JOINTS, [[float(v)] for v in q],
+                                    physicsClientId=self.client)
+
+    def collides_at(self, q) -> bool:
+        self.set(q)
+        pb.performCollisionDetection(physicsClientId=self.client)
+        for pt in pb.getContactPoints(bodyA=self.body, physicsClientId=self.client):
+            if pt[8] < 0 and pt[3] != -1:
+                return True
+        return False
+
+    def check(self, states: np.ndarray) -> tuple[bool, int]:
+        """The planner's checker: stops at the first colliding configuration."""
+        for k, q in enumerate(states):
+            if self.collides_at(q):
+                return False, k + 1
+        return True, len(states)
+
+    def tcp_pose(self, q) -> tuple[np.ndarray, np.ndarray]:
+        self.set(q)
+        state = pb.getLinkState(self.body, TCP_LINK, computeForwardKinematics=True,
+                                physicsClientId=self.client)
+        return np.array(state[4]), np.array(state[5])
+
+    def ik(self, position, orientation, rng: np.random.Generator, restarts: int,
+           pos_tol: float = 0.005, ang_tol: float = 0.05) -> tuple[np.ndarray | None, int, bool]:
+        """(a collision-free joint solution reaching the TCP pose or None, the collision
+        checks used, whether any solution reached the pose).  Restart k starts from home
+        (k = 0) or from a random configuration drawn from ``rng``."""
+        checks = 0
+        ranges = list(UPPER - LOWER)
+        for k in range(restarts):
+            start = HOME if k == 0 else rng.uniform(LOWER, UPPER)
+            self.set(start)
+            sol = pb.calculateInverseKinematics(
+                self.body, TCP_LINK, list(position), list(orientation),
+                lowerLimits=list(LOWER), upperLimits=list(UPPER), jointRanges=ranges,
+                restPoses=list(start), jointDamping=[0.005] * 9, maxNumIterations=50,
+                residualThreshold=1e-5, physicsClientId=self.client)
+            q = np.array(sol[:7])
+            if np.any(q < LOWER) or np.any(q > UPPER):
+                continue
+            pos, orn = self.tcp_pose(q)
+            if np.linalg.norm(pos - position) > pos_tol or _angle(orn, orientation) > ang_tol:
+                continue
+            checks += 1
+            if not self.collides_at(q):
+                return q, checks, True
+        return None, checks, checks > 0
+
+
+def _angle(q1, q2) -> float:
+    """Angle between two unit quaternions (x, y, z, w), radians."""
+    d = abs(float(np.dot(q1, q2)))
+    return 2.0 * float(np.arccos(min(1.0, d)))
