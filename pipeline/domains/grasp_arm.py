@@ -209,7 +209,7 @@ class GraspArmDomain(Domain):
                     placed.append((surface, xy, r))
                     return {"size": [round(float(v), 4) for v in size],
                             "position": [round(float(xy[0]), 4), round(float(xy[1]), 4),
-                                         round(z + size[2] / 2 + 1e-3, 4)],
+                                         round(float(z + size[2] / 2 + 1e-3), 4)],
                             "yaw": round(float(rng.uniform(-np.pi, np.pi)), 4),
                             "surface": surface}
             return None
@@ -335,7 +335,7 @@ class GraspArmDomain(Domain):
             if plan is not None and plan.feasible and constraint is not None:
                 scene.set_configuration(plan.path[-1], arm=self.grasp(constraint).arm)
             c = scene.client_id
-            view = pb.computeViewMatrix([1.7, 0.9, 1.1], [0.45, 0.0, 0.15], [0, 0, 1],
+            view = pb.computeViewMatrix([-0.2, 1.3, 1.1], [0.5, 0.0, 0.1], [0, 0, 1],
                                         physicsClientId=c)
             proj = pb.computeProjectionMatrixFOV(50, width / height, 0.05, 5.0,
                                                  physicsClientId=c)
