@@ -47,12 +47,12 @@ class ClusterKind(enum.Enum):
 
 @dataclass
 class InstancesConfig:
-    n: int = 400
+    n: int = 1000
 
 
 @dataclass
 class ConstraintsConfig:
-    m: int = 200  # subsampled (seeded) from the candidates when there are more
+    m: int = 162  # subsampled (seeded) from the candidates when there are more
 
 
 @dataclass

@@ -122,7 +122,7 @@ def test_compose_gives_validated_defaults():
 
 
 def test_a_sweep_gives_one_store_per_run_under_data(tmp_path):
-    cmd = [sys.executable, "-m", "pipeline", "-m", "stage=instances", "seed=0,1",
+    cmd = [sys.executable, "-m", "pipeline", "-m", "stage=instances", "seed=0,1", "domain=planar",
            "instances.n=5", "progress=false"]
     res = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, env=pr.env(),
                          timeout=300)

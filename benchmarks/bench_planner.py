@@ -1,0 +1,75 @@
+"""Cost of one score-matrix entry in the grasp_arm domain (paper §V-A), on one core.
+
+On 20 instances × all 162 constraints prints: collision checks per second, median ms per
+feasible call (IK + RRT-Connect + shortcutting), median ms per call rejected at IK, the
+status mix, and the mean ms per entry over all entries.  The authors' 2016 pipeline
+averaged 1.4 s per entry of this matrix.
+
+Run: python benchmarks/bench_planner.py [--instances 20]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections import Counter
+
+import numpy as np
+
+from pipeline.domains import load_domain
+from pipeline.planning import Status
+from pipeline.sim import panda as P
+
+
+def checks_per_second(domain, instances, per_instance: int = 2000) -> list[float]:
+    rates = []
+    for inst in instances:
+        scene = domain.scene(domain.check_instance(inst))
+        arm = scene.arms[0]
+        Q = np.random.default_rng(0).uniform(P.LOWER, P.UPPER, (per_instance, 7))
+        t0 = time.perf_counter()
+        for q in Q:
+            arm.collides_at(q)
+        rates.append(per_instance / (time.perf_counter() - t0))
+        arm.set(P.HOME)
+    return rates
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--instances", type=int, default=20)
+    args = ap.parse_args()
+    domain = load_domain("grasp_arm")
+    instances = [domain.sample_instance(i) for i in range(args.instances)]
+    rates = checks_per_second(domain, instances[:5])
+
+    times: dict[Status, list[float]] = {}
+    checks = 0
+    t0 = time.perf_counter()
+    for inst in instances:
+        for j in range(162):
+            res = domain.plan(inst, j, seed=j)
+            times.setdefault(res.status, []).append(res.time)
+            checks += res.checks
+    total = time.perf_counter() - t0
+    entries = args.instances * 162
+    mix = Counter({s.name.lower(): len(v) for s, v in times.items()})
+
+    print(f"grasp_arm, {args.instances} instances x 162 constraints = {entries} entries, "
+          "one core")
+    print(f"  collision checks/s (random configurations, arm + 2nd arm + furniture + "
+          f"obstacles): median {np.median(rates):,.0f} (target >= 20,000)")
+    for status, target, label in ((Status.OK, 20, "feasible call (IK + RRT + shortcut)"),
+                                  (Status.NO_IK, 3, "call rejected at IK")):
+        v = times.get(status, [])
+        med = f"{np.median(v) * 1e3:.2f} ms" if v else "n/a"
+        print(f"  median per {label:<36} {med} (target <= {target} ms; {len(v)} calls)")
+    print("  status mix: " + ", ".join(f"{k} {v} ({v / entries:.1%})"
+                                       for k, v in mix.most_common()))
+    print(f"  mean per entry over all entries: {total / entries * 1e3:.2f} ms (target <= 25 ms; "
+          f"the authors' 2016 pipeline: 1400 ms)")
+    print(f"  collision checks per entry: mean {checks / entries:,.0f}")
+
+
+if __name__ == "__main__":
+    main()
