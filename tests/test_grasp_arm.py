@@ -103,6 +103,22 @@ def test_same_call_is_bitwise_identical_in_another_process_and_order(domain):
     assert out == [here.path.tobytes().hex(), str(here.checks)]
 
 
+def test_results_do_not_depend_on_the_order_of_calls(domain):
+    """IK leaves an arm wherever its last attempt ended: the next call must not see that."""
+    inst = domain.sample_instance(3)  # an instance where a displaced arm used to matter
+
+    def run(order):
+        out = {}
+        for j in order:
+            r = domain.plan(inst, j, seed=j)
+            out[j] = (r.status, r.path.tobytes(), r.checks)
+        return out
+
+    forward = run(range(162))
+    assert run(reversed(range(162))) == forward
+    assert Status.START_IN_COLLISION not in {v[0] for v in forward.values()}
+
+
 def test_instances_vary_enough_that_no_grasp_wins_everywhere(domain):
     F = np.array([[domain.plan(domain.sample_instance(i), j, seed=j).feasible
                    for j in range(162)] for i in range(24)])

@@ -291,6 +291,13 @@ class GraspArmDomain(Domain):
     def _plan(self, inst: GraspArmInstance, g: Grasp, seed: int, t0: float) -> PlanResult:
         scene = self.scene(inst)
         arm = scene.arms[g.arm]
+        try:
+            return self._plan_arm(inst, g, arm, seed, t0)
+        finally:  # IK and planning move the arm; the next call must find both arms at home
+            arm.set(P.HOME)
+
+    def _plan_arm(self, inst: GraspArmInstance, g: Grasp, arm: P.Panda, seed: int,
+                  t0: float) -> PlanResult:
         pos, orn = self.pregrasp_pose(inst, g)
         if np.linalg.norm(pos - arm.shoulder) > P.REACH:  # out of reach: no IK can exist
             return PlanResult(Status.NO_IK, time=time.perf_counter() - t0)
@@ -301,7 +308,6 @@ class GraspArmDomain(Domain):
             return PlanResult(status, checks=ik_checks, time=time.perf_counter() - t0)
         budget = self.rrt.budget(arm.check)
         result = self.rrt.plan(P.HOME, goal, budget, seed=seed)
-        arm.set(P.HOME)
         result.checks += ik_checks
         result.time = time.perf_counter() - t0
         return result
