@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 import tempfile
 import time
@@ -47,12 +48,9 @@ def timed_scores(store: Path, overrides: list[str], console: Console) -> tuple[f
     run = stages.Run(cfg, console)
     try:
         run.open_for_writing()
-        for name in ("scores/done",):
-            if run.store.has(name):  # start from an empty scores group each time
-                import shutil
-
-                shutil.rmtree(store / "scores")
-                run.store.forget_stage("scores")
+        if run.store.has("scores/done"):  # start from an empty scores group each time
+            shutil.rmtree(store / "scores")
+            run.store.forget_stage("scores")
         t0 = time.perf_counter()
         _ = run.client
         t1 = time.perf_counter()

@@ -50,12 +50,12 @@ def test_the_grasp_set_is_162_distinct_constraints(domain):
     assert len({tuple(r) for r in cs.features}) == 162
     assert (cs.source_instance == -1).all()
     for k in (0, 57, 161):  # a feature row names the same grasp as its index
-        assert domain.grasp(cs.features[k]) is domain.grasp(k)
+        assert domain.constraint(cs.features[k]) is domain.constraint(k)
 
 
 def test_pregrasp_is_ten_centimetres_back_along_the_approach(domain):
     inst = domain.check_instance(OPEN)
-    g = domain.grasp(_index(0, [0, 0, -1]))
+    g = domain.constraint(_index(0, [0, 0, -1]))
     pre, _ = domain.pregrasp_pose(inst, g)
     np.testing.assert_allclose(pre, np.array(TARGET["position"]) + [0, 0, 0.10], atol=1e-12)
 

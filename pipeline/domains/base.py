@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import abc
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
 
-from pipeline.planning import PlannerSettings, PlanResult
+from pipeline.planning import PlannerSettings, PlanResult, Status
 
 
 class InstanceError(ValueError):
@@ -78,8 +79,29 @@ class Domain(abc.ABC):
         """Θ̂: the fixed set, or the constraints ``extracted`` from raw solutions."""
 
     @abc.abstractmethod
+    def constraint(self, constraint):
+        """Validate one constraint θ (as the domain accepts it); ValueError naming it if bad."""
+
     def plan(self, instance, constraint, seed: int = 0) -> PlanResult:
-        """π(ω, θ): one planning call."""
+        """π(ω, θ): one planning call.
+
+        Bad input (the spec, the constraint) raises; a failure inside the simulator or the
+        planner becomes status ``error`` so that one bad call never kills a worker.
+        ``time`` covers the whole call, validation included.
+        """
+        t0 = time.perf_counter()
+        inst = self.check_instance(instance)
+        theta = self.constraint(constraint)
+        try:
+            result = self._plan(inst, theta, int(seed))
+        except Exception as exc:  # noqa: BLE001 (an outcome, not a crash)
+            result = PlanResult(Status.ERROR, error=repr(exc))
+        result.time = time.perf_counter() - t0
+        return result
+
+    @abc.abstractmethod
+    def _plan(self, instance, constraint, seed: int) -> PlanResult:
+        """The planning call proper, on a checked instance and constraint."""
 
     @abc.abstractmethod
     def raw_plan(self, instance, seed: int = 0) -> RawResult:

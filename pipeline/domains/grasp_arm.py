@@ -31,7 +31,7 @@ from pipeline.domains.base import (
 )
 from pipeline.planning import PlanResult, RRTConnect, Status
 from pipeline.sim import panda as P
-from pipeline.sim.world import add_box, connect, yaw_quaternion
+from pipeline.sim.world import add_box, connect
 
 #: name -> (x range, y range, surface height, free height above it)
 SURFACES = {
@@ -136,7 +136,7 @@ class GraspArmScene:
             self.load(instance)
 
     def load(self, instance: GraspArmInstance) -> None:
-        if self.instance is instance:
+        if self.instance == instance:  # by value: re-parsed specs reuse the loaded boxes
             return
         for body in self._bodies:
             pb.removeBody(body, physicsClientId=self.client_id)
@@ -183,7 +183,6 @@ class GraspArmDomain(Domain):
         self.grasps = grasp_set()
         self.rrt = RRTConnect(P.LOWER, P.UPPER, planner)
         self._scene: GraspArmScene | None = None
-        self._parsed: dict[str, GraspArmInstance] = {}
 
     @property
     def n_features(self) -> int:
@@ -238,7 +237,7 @@ class GraspArmDomain(Domain):
         feats = np.stack([g.features for g in self.grasps])
         return ConstraintSet(feats, np.full(len(feats), -1))
 
-    def grasp(self, constraint) -> Grasp:
+    def constraint(self, constraint) -> Grasp:
         """A grasp from its index (0..161) or its feature row."""
         if isinstance(constraint, int | np.integer):
             if not 0 <= constraint < len(self.grasps):
@@ -270,52 +269,32 @@ class GraspArmDomain(Domain):
         self._scene.load(inst)
         return self._scene
 
-    def plan(self, instance, constraint, seed: int = 0) -> PlanResult:
-        t0 = time.perf_counter()
-        inst = self._instance(instance)
-        g = self.grasp(constraint)
-        try:
-            return self._plan(inst, g, int(seed), t0)
-        except Exception as exc:  # a simulator or planner failure is an outcome, not a crash
-            return PlanResult(Status.ERROR, error=repr(exc), time=time.perf_counter() - t0)
-
-    def _instance(self, instance) -> GraspArmInstance:
-        """Parsed once per spec: the pipeline plans all constraints of an instance in a row."""
-        if isinstance(instance, GraspArmInstance):
-            return instance
-        key = repr(instance)
-        if key not in self._parsed:
-            self._parsed = {key: self.check_instance(instance)}
-        return self._parsed[key]
-
-    def _plan(self, inst: GraspArmInstance, g: Grasp, seed: int, t0: float) -> PlanResult:
+    def _plan(self, inst: GraspArmInstance, g: Grasp, seed: int) -> PlanResult:
         scene = self.scene(inst)
         arm = scene.arms[g.arm]
         try:
-            return self._plan_arm(inst, g, arm, seed, t0)
+            return self._plan_arm(inst, g, arm, seed)
         finally:  # IK and planning move the arm; the next call must find both arms at home
             arm.set(P.HOME)
 
-    def _plan_arm(self, inst: GraspArmInstance, g: Grasp, arm: P.Panda, seed: int,
-                  t0: float) -> PlanResult:
+    def _plan_arm(self, inst: GraspArmInstance, g: Grasp, arm: P.Panda, seed: int) -> PlanResult:
         pos, orn = self.pregrasp_pose(inst, g)
         if np.linalg.norm(pos - arm.shoulder) > P.REACH:  # out of reach: no IK can exist
-            return PlanResult(Status.NO_IK, time=time.perf_counter() - t0)
+            return PlanResult(Status.NO_IK)
         rng = np.random.default_rng([seed, 7])
         goal, ik_checks, reached = arm.ik(pos, orn, rng, self.config.ik_restarts)
         if goal is None:  # no solution at all, or only colliding ones
             status = Status.GOAL_IN_COLLISION if reached else Status.NO_IK
-            return PlanResult(status, checks=ik_checks, time=time.perf_counter() - t0)
+            return PlanResult(status, checks=ik_checks)
         budget = self.rrt.budget(arm.check)
         result = self.rrt.plan(P.HOME, goal, budget, seed=seed)
         result.checks += ik_checks
-        result.time = time.perf_counter() - t0
         return result
 
     def raw_plan(self, instance, seed: int = 0) -> RawResult:
         """RAWPLANNER: (arm, grasp) pairs drawn without replacement until one is feasible."""
         t0 = time.perf_counter()
-        inst = self._instance(instance)
+        inst = self.check_instance(instance)
         order = np.random.default_rng([int(seed), 2]).permutation(len(self.grasps))
         checks = 0
         plan = PlanResult(Status.NO_IK)
@@ -339,7 +318,7 @@ class GraspArmDomain(Domain):
         scene = GraspArmScene(inst)
         try:
             if plan is not None and plan.feasible and constraint is not None:
-                scene.set_configuration(plan.path[-1], arm=self.grasp(constraint).arm)
+                scene.set_configuration(plan.path[-1], arm=self.constraint(constraint).arm)
             c = scene.client_id
             view = pb.computeViewMatrix([-0.2, 1.3, 1.1], [0.5, 0.0, 0.1], [0, 0, 1],
                                         physicsClientId=c)
@@ -369,4 +348,4 @@ def _feature_index(row: tuple) -> int | None:
     return _feature_table().get(row)
 
 
-__all__ = ["GraspArmConfig", "GraspArmDomain", "grasp_set", "hand_orientation", "yaw_quaternion"]
+__all__ = ["GraspArmConfig", "GraspArmDomain", "grasp_set", "hand_orientation"]

@@ -140,34 +140,25 @@ class PlanarDomain(Domain):
         keep = np.all(np.isfinite(extracted.features), axis=1)
         return ConstraintSet(extracted.features[keep], extracted.source_instance[keep])
 
-    def via_point(self, constraint) -> np.ndarray:
+    def constraint(self, constraint) -> np.ndarray:
+        """The via-point θ as a 2-vector."""
         via = np.asarray(constraint, dtype=float)
         if via.shape != (2,) or not np.all(np.isfinite(via)):
             raise ValueError(f"planar constraint must be 2 finite numbers, got {constraint!r}")
         return via
 
-    def plan(self, instance, constraint, seed: int = 0) -> PlanResult:
-        t0 = time.perf_counter()
-        inst = self.check_instance(instance)
-        via = self.via_point(constraint)
-        try:
-            return self._plan_via(inst, via, int(seed), t0)
-        except Exception as exc:  # a planner failure is an outcome, not a crash
-            return PlanResult(Status.ERROR, error=repr(exc), time=time.perf_counter() - t0)
-
-    def _plan_via(self, inst: PlanarInstance, via: np.ndarray, seed: int, t0: float) -> PlanResult:
+    def _plan(self, inst: PlanarInstance, via: np.ndarray, seed: int) -> PlanResult:
         scene = self.build_scene(inst)
         budget = self.rrt.budget(scene.check)
         legs = []
         for leg, (a, b) in enumerate(((self.start, via), (via, self.goal))):
             result = self.rrt.plan(a, b, budget, seed=2 * seed + leg)
             if not result.feasible:
-                result.checks, result.time = budget.used, time.perf_counter() - t0
+                result.checks = budget.used
                 return result
             legs.append(result.path)
         path = np.concatenate([legs[0], legs[1][1:]])
-        return PlanResult(Status.OK, path=path, length=path_length(path), checks=budget.used,
-                          time=time.perf_counter() - t0)
+        return PlanResult(Status.OK, path=path, length=path_length(path), checks=budget.used)
 
     def raw_plan(self, instance, seed: int = 0) -> RawResult:
         t0 = time.perf_counter()
@@ -207,7 +198,7 @@ class PlanarDomain(Domain):
             for q, colour in ((self.start, "tab:green"), (self.goal, "tab:red")):
                 ax.add_patch(Circle(q, self.config.robot_radius, color=colour))
             if constraint is not None:
-                ax.plot(*self.via_point(constraint), marker="x", color="tab:orange", ms=10)
+                ax.plot(*self.constraint(constraint), marker="x", color="tab:orange", ms=10)
             if plan is not None and plan.feasible:
                 ax.plot(plan.path[:, 0], plan.path[:, 1], color="tab:blue", lw=2)
             ax.set_title(f"planar instance {inst.seed}")
