@@ -5,12 +5,14 @@ array; depends on numpy and scipy only.
 """
 
 from box_core.failure import failure_value, fill_failures
-from box_core.loocv import DEFAULT_SELECTORS, LoocvResult, loocv
+from box_core.loocv import DEFAULT_SELECTORS, LoocvResult, holdout, loocv
 from box_core.prior import Prior
 from box_core.selectors import SELECTORS, Selector, make_selector
 from box_core.summary import Summary, curve_summary
+from box_core.tuning import CTuning, learning_curve, tune_c
 
 __all__ = [
+    "CTuning",
     "DEFAULT_SELECTORS",
     "SELECTORS",
     "LoocvResult",
@@ -20,6 +22,9 @@ __all__ = [
     "curve_summary",
     "failure_value",
     "fill_failures",
+    "holdout",
+    "learning_curve",
     "loocv",
     "make_selector",
+    "tune_c",
 ]

@@ -91,81 +91,166 @@ def loocv(
     choices with ``(seed, i)``.  ``measure_overhead=False`` leaves the selectors' compute time
     out of the times, which makes the result fully deterministic.
     """
-    D = validation.score_matrix(scores, min_rows=3)
-    n, m = D.shape
-    if times is None:
-        T = np.ones((n, m))
-    else:
-        T = validation.matching_matrix(times, D.shape, name="times")
-    if (T < 0).any():
-        raise ValueError("times must be >= 0")
-    theta = None if features is None else validation.feature_matrix(features, m)
-    if failure_rule not in RULES:
-        raise ValueError(f"unknown failure rule {failure_rule!r}; choose one of {', '.join(RULES)}")
-    names = (selectors,) if isinstance(selectors, str) else tuple(selectors)
-    if not names:
-        raise ValueError("selectors is empty")
-    if len(set(names)) != len(names):
-        raise ValueError(f"selectors has duplicates: {names}")
-    k = m if k is None else k
-    if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 1 <= k <= m:
-        raise ValueError(f"k must be an integer between 1 and m = {m}, got {k!r}")
-    k = int(k)
-    params = dict(params or {})
-    stray = set(params) - set(names)
-    if stray:
-        raise ValueError(f"params given for selectors not evaluated: {', '.join(sorted(stray))}")
-    classes = {
-        name: check_selector(name, dict(params.get(name, {})), features=theta) for name in names
-    }
-
-    if feasible is None:
-        d = float(D.min())
-        feas = D > d
-        if not feas.any():
-            raise ValueError("every score equals the minimum: no entry can be told feasible")
-    else:
-        feas = validation.boolean_matrix(feasible, D.shape, name="feasible")
-        d = _failure_value(D, feas, failure_rule)
-        D = fill_failures(D, feas, d)
-
-    prior = Prior.fit(D)
-    runs = {
-        name: _run(cls, dict(params.get(name, {})), prior, D, theta, seed, k, measure_overhead)
-        for name, cls in classes.items()
-    }
-    rows = np.arange(n)[:, None]
-    totals = {  # cumulative time after each try: planning plus the selector's own time
-        name: np.cumsum(T[rows, order] + overhead, axis=1)
-        for name, (order, overhead) in runs.items()
-    }
-    grid = _default_grid(totals, T) if time_grid is None else _checked_grid(time_grid)
-    result = LoocvResult(
-        selectors=names,
-        k=k,
-        failure_value=d,
-        eligible=feas.any(axis=1),
-        optimal_score=D.max(axis=1),
-        time_grid=grid,
-    )
-    for name, (order, overhead) in runs.items():
-        hit = feas[rows, order]
-        found = hit.any(axis=1)
-        step = np.where(found, hit.argmax(axis=1), -1)
-        at = np.maximum(step, 0)[:, None]
-        planning = np.cumsum(T[rows, order], axis=1)
-        result.order[name] = order
-        result.overhead[name] = overhead
-        result.first_feasible_step[name] = step
-        planning_at = planning[rows, at][:, 0]
-        result.first_feasible_planning_time[name] = np.where(found, planning_at, np.nan)
-        result.first_feasible_time[name] = np.where(found, totals[name][rows, at][:, 0], np.nan)
-        result.best_score[name] = _best_by_time(totals[name], D[rows, order], grid, d)
-    return result
+    setup = _Setup.check(scores, times, feasible, selectors, k, features, params,
+                         failure_rule, min_rows=3)
+    prior = Prior.fit(setup.D)
+    rows = np.arange(setup.D.shape[0])
+    return setup.evaluate(prior.folds, rows, seed, time_grid, measure_overhead)
 
 
-def _run(cls: type[Policy], kwargs, prior, D, features, seed, k, measure):
-    """One selector over every held-out row: (order (n, k), overhead seconds (n, k))."""
+def holdout(
+    scores,
+    train,
+    test,
+    *,
+    times=None,
+    feasible=None,
+    selectors: Iterable[str] | str = DEFAULT_SELECTORS,
+    k: int | None = None,
+    features=None,
+    seed: int = 0,
+    params: Mapping[str, Mapping] | None = None,
+    failure_rule: str = "magnitude",
+    time_grid=None,
+    measure_overhead: bool = True,
+) -> LoocvResult:
+    """Like :func:`loocv`, but every row of ``test`` is run with the one prior fitted on the
+    rows ``train`` (learning curves, nested cross-validation).  The result's rows are the
+    ``test`` rows, in that order; row i of D still seeds its random choices with
+    ``(seed, i)``, and the failure value comes from the whole matrix, as in :func:`loocv`.
+    """
+    setup = _Setup.check(scores, times, feasible, selectors, k, features, params,
+                         failure_rule, min_rows=2)
+    n = setup.D.shape[0]
+    train = _row_indices(train, n, "train")
+    test = _row_indices(test, n, "test")
+    if train.size < 2:
+        raise ValueError(f"train needs at least 2 rows, got {train.size}")
+    if test.size < 1:
+        raise ValueError("test is empty")
+    if np.intersect1d(train, test).size:
+        raise ValueError("train and test share rows")
+    prior = Prior.fit(setup.D[train])
+    return setup.evaluate(lambda rows: prior.batch(rows.size), test, seed, time_grid,
+                          measure_overhead)
+
+
+def _row_indices(rows, n: int, name: str) -> np.ndarray:
+    r = np.asarray(rows)
+    if r.dtype == bool:
+        if r.shape != (n,):
+            raise ValueError(f"{name}: a boolean mask must have shape ({n},), got {r.shape}")
+        return np.flatnonzero(r)
+    if r.ndim != 1 or (r.size and not np.issubdtype(r.dtype, np.integer)):
+        raise ValueError(f"{name} must be a 1-D array of row indices or a boolean mask")
+    r = r.astype(np.intp)
+    if r.size and (r.min() < 0 or r.max() >= n):
+        raise ValueError(f"{name}: row indices must lie in [0, {n})")
+    if np.unique(r).size != r.size:
+        raise ValueError(f"{name} has repeated rows")
+    return r
+
+
+@dataclass(eq=False)
+class _Setup:
+    """Checked inputs shared by :func:`loocv` and :func:`holdout`."""
+
+    D: np.ndarray  # failures filled with the failure value
+    T: np.ndarray
+    feas: np.ndarray
+    d: float
+    theta: np.ndarray | None
+    names: tuple[str, ...]
+    classes: dict
+    params: dict
+    k: int
+
+    @classmethod
+    def check(cls, scores, times, feasible, selectors, k, features, params, failure_rule,
+              min_rows):
+        D = validation.score_matrix(scores, min_rows=min_rows)
+        n, m = D.shape
+        if times is None:
+            T = np.ones((n, m))
+        else:
+            T = validation.matching_matrix(times, D.shape, name="times")
+        if (T < 0).any():
+            raise ValueError("times must be >= 0")
+        theta = None if features is None else validation.feature_matrix(features, m)
+        if failure_rule not in RULES:
+            raise ValueError(f"unknown failure rule {failure_rule!r}; "
+                             f"choose one of {', '.join(RULES)}")
+        names = (selectors,) if isinstance(selectors, str) else tuple(selectors)
+        if not names:
+            raise ValueError("selectors is empty")
+        if len(set(names)) != len(names):
+            raise ValueError(f"selectors has duplicates: {names}")
+        k = m if k is None else k
+        if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 1 <= k <= m:
+            raise ValueError(f"k must be an integer between 1 and m = {m}, got {k!r}")
+        params = dict(params or {})
+        stray = set(params) - set(names)
+        if stray:
+            raise ValueError("params given for selectors not evaluated: "
+                             f"{', '.join(sorted(stray))}")
+        classes = {
+            name: check_selector(name, dict(params.get(name, {})), features=theta)
+            for name in names
+        }
+        if feasible is None:
+            d = float(D.min())
+            feas = D > d
+            if not feas.any():
+                raise ValueError("every score equals the minimum: no entry can be told feasible")
+        else:
+            feas = validation.boolean_matrix(feasible, D.shape, name="feasible")
+            d = _failure_value(D, feas, failure_rule)
+            D = fill_failures(D, feas, d)
+        return cls(D=D, T=T, feas=feas, d=d, theta=theta, names=names, classes=classes,
+                   params=params, k=int(k))
+
+    def evaluate(self, fold_priors, test, seed, time_grid, measure) -> LoocvResult:
+        """Run every selector on the ``test`` rows; ``fold_priors(rows)`` gives their priors."""
+        D, T, feas, k = self.D[test], self.T[test], self.feas[test], self.k
+        runs = {
+            name: _run(cls, dict(self.params.get(name, {})), fold_priors, D, test,
+                       self.theta, seed, k, measure)
+            for name, cls in self.classes.items()
+        }
+        rows = np.arange(test.size)[:, None]
+        totals = {  # cumulative time after each try: planning plus the selector's own time
+            name: np.cumsum(T[rows, order] + overhead, axis=1)
+            for name, (order, overhead) in runs.items()
+        }
+        grid = _default_grid(totals, T) if time_grid is None else _checked_grid(time_grid)
+        result = LoocvResult(
+            selectors=self.names,
+            k=k,
+            failure_value=self.d,
+            eligible=feas.any(axis=1),
+            optimal_score=D.max(axis=1),
+            time_grid=grid,
+        )
+        for name, (order, overhead) in runs.items():
+            hit = feas[rows, order]
+            found = hit.any(axis=1)
+            step = np.where(found, hit.argmax(axis=1), -1)
+            at = np.maximum(step, 0)[:, None]
+            planning = np.cumsum(T[rows, order], axis=1)
+            result.order[name] = order
+            result.overhead[name] = overhead
+            result.first_feasible_step[name] = step
+            planning_at = planning[rows, at][:, 0]
+            result.first_feasible_planning_time[name] = np.where(found, planning_at, np.nan)
+            result.first_feasible_time[name] = np.where(found, totals[name][rows, at][:, 0],
+                                                        np.nan)
+            result.best_score[name] = _best_by_time(totals[name], D[rows, order], grid, self.d)
+        return result
+
+
+def _run(cls: type[Policy], kwargs, fold_priors, D, test, features, seed, k, measure):
+    """One selector over the held-out rows ``test`` (``D`` holds just their scores):
+    (order (B, k), overhead seconds (B, k))."""
     n, m = D.shape
     order = np.full((n, k), -1, dtype=np.intp)
     overhead = np.zeros((n, k))
@@ -174,8 +259,8 @@ def _run(cls: type[Policy], kwargs, prior, D, features, seed, k, measure):
         rows = np.arange(start, min(n, start + batch))
         clock = time.perf_counter()
         ctx = FoldContext(
-            prior=prior.folds(rows),
-            seeds=[(seed, int(i)) for i in rows],
+            prior=fold_priors(test[rows]),
+            seeds=[(seed, int(i)) for i in test[rows]],
             features=features,
             true_scores=D[rows],
             horizon=k,

@@ -67,13 +67,13 @@ class Prior:
         rest = np.delete(self._scores, i, axis=0)
         return Prior(mean=batch.mean[0], cov=cov, n=self.n - 1, _scores=rest)
 
-    def batch(self) -> FoldPriors:
-        """This prior as a batch of one, the form the selectors consume."""
+    def batch(self, size: int = 1) -> FoldPriors:
+        """This prior for ``size`` instances at once, the form the selectors consume."""
         return FoldPriors(
-            mean=self.mean[None, :],
+            mean=np.repeat(self.mean[None, :], size, axis=0),
             scatter=self.cov,
             scale=1.0,
-            centered=np.zeros((1, self.m)),
+            centered=np.zeros((size, self.m)),
             coef=0.0,
             n_train=self.n,
         )
