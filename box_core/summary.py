@@ -7,11 +7,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from box_core.stats import mean_ci, mean_ci_columns
-
-#: Resamples of the paired bootstrap behind the speed-up intervals (fixed seed: the same
-#: result always gives the same table).
-BOOTSTRAP_RESAMPLES = 2000
+from box_core.stats import mean_ci, mean_ci_columns, paired_ratio
 
 
 @dataclass(frozen=True)
@@ -116,7 +112,7 @@ def summarize(result, reference: str = "box", level: float = 0.95, others=None) 
             overhead = float(result.overhead[name].mean() * 1e3)
         found = ~np.isnan(times)
         mean, lo, hi = mean_ci(times, level)
-        ratio, r_lo, r_hi = _paired_ratio(times, ref_time, level)
+        ratio, r_lo, r_hi = paired_ratio(times, ref_time, level)
         lines.append(SelectorSummary(
             name=name,
             rows=int(eligible.sum()),
@@ -138,22 +134,6 @@ def curve_summary(result, name: str, level: float = 0.95, rows=None):
     """Mean best score versus ``result.time_grid`` with its interval: (mean, low, high)."""
     values = result.best_score[name] if rows is None else result.best_score[name][rows]
     return mean_ci_columns(values, level)
-
-
-def _paired_ratio(times, ref, level):
-    """mean(times) / mean(ref) over rows where both found a plan, with a bootstrap interval."""
-    both = ~np.isnan(times) & ~np.isnan(ref)
-    a, b = times[both], ref[both]
-    if a.size == 0 or b.sum() <= 0:
-        return (math.nan, math.nan, math.nan)
-    ratio = float(a.mean() / b.mean())
-    rng = np.random.default_rng(0)
-    idx = rng.integers(0, a.size, size=(BOOTSTRAP_RESAMPLES, a.size))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        boot = a[idx].mean(axis=1) / b[idx].mean(axis=1)
-    tail = (1 - level) / 2 * 100
-    lo, hi = np.nanpercentile(boot, [tail, 100 - tail])
-    return (ratio, float(lo), float(hi))
 
 
 def _num(x: float) -> str:

@@ -13,10 +13,13 @@ from rich.console import Console
 import box_core
 from box_core import synthetic
 from box_core.io import MatrixFile, load_matrix
+from pipeline.store import ScoreStore, StoreError
 from pipeline.tables import summary_table
 
 app = typer.Typer(
-    help="Score-space constraint selection (BOX): evaluate selectors on score matrices.",
+    help="Score-space constraint selection (BOX). Inspect score stores made by "
+    "`python -m pipeline` (status, show, export) and evaluate selectors on any score matrix "
+    "(evaluate, demo).",
     no_args_is_help=True,
     add_completion=False,
 )
@@ -35,7 +38,8 @@ def _fail(message: str) -> None:
 
 @app.command()
 def evaluate(
-    file: Path = typer.Argument(..., help="Score matrix file: .npz, or .mat (MATLAB)."),
+    file: Path = typer.Argument(..., help="Score matrix file (.npz, or .mat from MATLAB), or a "
+                                "score store (.zarr folder) made by the pipeline."),
     selectors: str = typer.Option(
         "", help="Comma-separated selectors (box, static, rand, doo, pembo, oracle). "
         "Default: box, static, rand, plus doo when the file has features."),
@@ -56,15 +60,29 @@ def evaluate(
     feasibility mask, entries equal to the matrix minimum count as failures.
     """
     try:
-        data = load_matrix(file, scores=scores_var, times=times_var,
-                           feasible=feasible_var, features=features_var)
-    except (FileNotFoundError, ValueError) as exc:
+        if file.is_dir():
+            data = _store_matrix(file)
+        else:
+            data = load_matrix(file, scores=scores_var, times=times_var,
+                               feasible=feasible_var, features=features_var)
+    except (FileNotFoundError, ValueError, StoreError) as exc:
         _fail(str(exc))
     names = [s.strip() for s in selectors.split(",") if s.strip()]
     if not names:
         names = ["box", "static", "rand"] + (["doo"] if data.features is not None else [])
     _evaluate_matrix(data, file, names, k=k, seed=seed, c=c, failure_rule=failure_rule,
                      overhead=overhead, as_json=as_json)
+
+
+def _store_matrix(path: Path) -> MatrixFile:
+    from pipeline.evaluation import load_matrix as store_matrix
+
+    store = ScoreStore.open(path)
+    if store.stage_info("scores") is None:
+        raise StoreError(f"{path}: the score matrix is not complete; finish it with "
+                         "python -m pipeline stage=generate")
+    scores, feasible, times, theta = store_matrix(store)
+    return MatrixFile(scores=scores, times=times, feasible=feasible, features=theta)
 
 
 def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, seed=0,
@@ -133,6 +151,109 @@ def _holds(path: Path, data: synthetic.SyntheticData) -> bool:
     pairs = [(old.scores, data.scores), (old.times, data.times),
              (old.feasible, data.feasible), (old.features, data.features)]
     return all(a is not None and np.array_equal(a, b) for a, b in pairs)
+
+
+STORE_HELP = "A score store (.zarr folder) made by python -m pipeline."
+
+
+@app.command()
+def status(store: Path = typer.Argument(..., help=STORE_HELP),
+           as_json: bool = typer.Option(False, "--json", help="Print the status as JSON.")):
+    """Show what STORE holds: stages, completion, corrupted chunks.
+
+    Exit code 0 when every chunk reads back, 1 when some are corrupted (re-running the
+    stage recomputes them), 2 when STORE is missing or not a store of this pipeline.
+    """
+    from pipeline.status import collect, print_status
+
+    try:
+        report = collect(store) if as_json else print_status(store, out)
+    except StoreError as exc:
+        _fail(str(exc))
+    if as_json:
+        typer.echo(json.dumps(report, indent=2))
+    if any(a["corrupted"] for a in report["arrays"]):
+        raise typer.Exit(1)
+
+
+@app.command()
+def show(
+    store: Path = typer.Argument(..., help=STORE_HELP),
+    instance: int = typer.Option(..., "--instance", "-i", help="Instance (row) index."),
+    constraint: int = typer.Option(None, "--constraint", "-c",
+                                   help="Constraint (column) index: plan it and draw the plan."),
+    out_path: Path = typer.Option(None, "--out", "-o",
+                                  help="PNG to write (default: instance<I>[-constraint<J>].png)."),
+):
+    """Render one instance of STORE to a PNG, optionally with a constraint's plan.
+
+    With --constraint J, entry (I, J) is planned again with its stored seed, which gives
+    the same plan as in the score matrix, and drawn.
+    """
+    from pipeline.report.data import domain_spec
+    from pipeline.worker import domain_for, entry_seed
+
+    try:
+        st = ScoreStore.open(store)
+        if not st.has("instances/spec"):
+            raise StoreError(f"{store} has no instances yet; run stage=instances first")
+        specs = st.array("instances/spec")
+        n = specs.shape[0]
+        if not 0 <= instance < n:
+            raise ValueError(f"--instance {instance} out of range: the store has {n} instances")
+        spec = json.loads(str(specs[instance]))
+        domain = domain_for(domain_spec(st))
+        name = f"instance{instance}" + ("" if constraint is None else f"-constraint{constraint}")
+        target = out_path or Path.cwd() / f"{name}.png"
+        if constraint is None:
+            domain.render(spec, None, target)
+            out.print(f"wrote {target}")
+            return
+        if not st.has("constraints/theta"):
+            raise StoreError(f"{store} has no constraints yet; run stage=constraints first")
+        theta = st.array("constraints/theta")[...]
+        if not 0 <= constraint < theta.shape[0]:
+            raise ValueError(f"--constraint {constraint} out of range: the store has "
+                             f"{theta.shape[0]} constraints")
+        seed = int(st.attrs["config"]["seed"])
+        inst_seed = int(st.array("instances/seed")[instance])
+        plan = domain.plan(domain.check_instance(spec), theta[constraint],
+                           seed=entry_seed(seed, inst_seed, constraint))
+        domain.render(spec, plan, target, constraint=theta[constraint])
+    except (StoreError, ValueError) as exc:
+        _fail(str(exc))
+    stored = ""
+    if st.has("scores/done") and st.done("scores")[instance, constraint]:
+        was = bool(st.array("scores/feasible")[instance, constraint])
+        stored = " (as in the score matrix)" if was == plan.feasible else \
+            f" (the score matrix says {'feasible' if was else 'infeasible'})"
+    verdict = f"feasible, length {plan.length:.4g}" if plan.feasible else plan.status.name.lower()
+    out.print(f"wrote {target}: {verdict}{stored}, {plan.time * 1e3:.1f} ms", highlight=False)
+
+
+@app.command()
+def export(
+    store: Path = typer.Argument(..., help=STORE_HELP),
+    fmt: str = typer.Option("npz", "--format", "-f", help="npz (one NumPy archive that box "
+                            "evaluate reads) or csv (a folder of CSV files plus metadata.json)."),
+    out_path: Path = typer.Option(None, "--out", "-o", help="Where to write (default: next to "
+                                  "the current folder, named after the store)."),
+):
+    """Export STORE's score matrix and metadata (npz or csv) for other tools.
+
+    Writes scores, times, feasibility, path lengths, statuses, constraint features and the
+    store's config. An unfinished store is exported with a `done` mask and a warning.
+    """
+    from pipeline.export import export as write
+
+    try:
+        path, complete = write(store, fmt, out_path)
+    except (StoreError, ValueError) as exc:
+        _fail(str(exc))
+    out.print(f"wrote {path}", highlight=False)
+    if not complete:
+        err.print("[yellow]warning:[/] the store is not complete; entries not computed yet "
+                  "have done = 0")
 
 
 def main() -> None:  # pragma: no cover - console entry point

@@ -30,6 +30,8 @@ class Stage(enum.Enum):
     scores = "scores"
     generate = "generate"
     evaluate = "evaluate"
+    report = "report"
+    solve = "solve"
     status = "status"
     all = "all"
 
@@ -92,6 +94,28 @@ class EvaluateConfig:
 
 
 @dataclass
+class ReportConfig:
+    stores: list[str] = field(default_factory=list)  # empty: this run's store
+    dir: str | None = None  # default: the run's Hydra output folder
+    renders: int = 3  # instances rendered with BOX's first choice, per store
+    fractions: list[float] = field(default_factory=lambda: [0.1, 0.25, 0.5, 1.0])
+    repeats: int = 5  # random held-out sets per learning-curve point
+    c_grid: list[float] = field(default_factory=lambda: [0.0, 0.5, 1.0, 1.96, 3.0, 5.0])
+    c_folds: int = 5  # outer folds of the nested cross-validation of C
+    formats: list[str] = field(default_factory=lambda: ["png", "svg"])
+
+
+@dataclass
+class SolveConfig:
+    n: int = 20  # fresh instances (seeds never used in the store)
+    selectors: list[str] = field(default_factory=lambda: ["box", "static"])
+    max_evaluations: int | None = 50  # planning calls per instance and selector; null = m
+    max_seconds: float | None = None  # wall-clock budget per instance and selector
+    use_incomplete: bool = False  # fit on the completed rows of an unfinished store
+    dir: str | None = None  # default: the run's Hydra output folder
+
+
+@dataclass
 class Config:
     stage: Stage = Stage.generate
     seed: int = 0
@@ -102,6 +126,8 @@ class Config:
     constraints: ConstraintsConfig = field(default_factory=ConstraintsConfig)
     store: StoreConfig = field(default_factory=StoreConfig)
     evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
+    report: ReportConfig = field(default_factory=ReportConfig)
+    solve: SolveConfig = field(default_factory=SolveConfig)
     progress: bool = True  # the progress bar (off for logs and tests)
 
 

@@ -255,11 +255,48 @@ STAGES = {"instances": stage_instances, "raw": stage_raw, "constraints": stage_c
 
 
 def plan_stages(stage: Stage) -> tuple[str, ...]:
+    """The store-writing stages that ``stage`` runs, in order."""
     if stage is Stage.generate:
         return GENERATE
     if stage is Stage.all:
         return (*GENERATE, "evaluate")
+    if stage in (Stage.report, Stage.solve, Stage.status):
+        return ()
     return (stage.value,)
+
+
+def output_dir(configured: str | None, name: str) -> Path:
+    """Where ``report`` and ``solve`` write: the configured folder, else the run's Hydra
+    output folder (outputs/<date>/<time>/ by default), else ./outputs/<name>."""
+    if configured:
+        return Path(configured).expanduser().absolute()
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        return Path(HydraConfig.get().runtime.output_dir) / name
+    except (ImportError, ValueError):
+        return Path.cwd() / "outputs" / name
+
+
+def stage_report(run: Run) -> None:
+    from pipeline.report import make_report
+
+    settings = run.plain["report"]
+    if settings["renders"] < 0 or settings["repeats"] < 1 or settings["c_folds"] < 2:
+        raise ValueError("report.renders must be >= 0, report.repeats >= 1 and "
+                         "report.c_folds >= 2")
+    bad = set(settings["formats"]) - {"png", "svg", "pdf"}
+    if bad or "png" not in settings["formats"]:
+        raise ValueError(f"report.formats must include png and may add svg or pdf, got "
+                         f"{settings['formats']}")
+    paths = [Path(p).expanduser().absolute() for p in settings["stores"]] or [run.path]
+    make_report(paths, output_dir(settings["dir"], "report"), settings, say=run.say)
+
+
+def stage_solve(run: Run) -> None:
+    from pipeline.solve import solve
+
+    solve(run, output_dir(run.plain["solve"]["dir"], "solve"))
 
 
 def run_pipeline(cfg, console: Console) -> None:
@@ -272,11 +309,16 @@ def run_pipeline(cfg, console: Console) -> None:
         print_status(run.path, console)
         return
     try:
-        run.open_for_writing()
-        run.say(f"store: {run.path} (config {run.store.attrs['config_hash']})")
-        for name in plan_stages(stage):
-            STAGES[name](run)
-            run.store.consolidate()
+        writing = plan_stages(stage)
+        if writing:
+            run.open_for_writing()
+            run.say(f"store: {run.path} (config {run.store.attrs['config_hash']})")
+            for name in writing:
+                STAGES[name](run)
+                run.store.consolidate()
+        if stage in (Stage.report, Stage.all):
+            stage_report(run)
+        if stage is Stage.solve:
+            stage_solve(run)
     finally:
         run.close()
-

@@ -1,0 +1,177 @@
+"""Stage ``report``: figures like the paper's, a learning curve, BOX's sensitivity to C,
+renders of BOX's first choice, as report.md and a self-contained report.html."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+
+import box_core
+from pipeline.report import figures
+from pipeline.report.data import StoreResults, load
+from pipeline.report.document import Document
+
+__all__ = ["StoreResults", "load", "make_report", "summary_rows"]
+
+
+def _num(x, digits: int = 4) -> str:
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}g}"
+
+
+def summary_rows(res: StoreResults) -> tuple[list[str], list[list[str]]]:
+    """The evaluation's summary table (the numbers stage evaluate computed and stored)."""
+    ref = figures.label(res.summary["reference"])
+    header = ["selector", "found", "mean time (s)", "95% CI", "median (s)", "tries",
+              f"x {ref}", f"95% CI of x {ref}"]
+    rows = []
+    for line in res.summary["selectors"]:
+        rows.append([
+            figures.label(line["name"]), f"{line['found']}/{line['rows']}",
+            _num(line["mean_time"]), f"[{_num(line['ci_low'])}, {_num(line['ci_high'])}]",
+            _num(line["median_time"]), _num(line["mean_tries"], 3), _num(line["speedup"], 3),
+            f"[{_num(line['speedup_low'], 3)}, {_num(line['speedup_high'], 3)}]"])
+    return header, rows
+
+
+def _dataset_rows(results) -> tuple[list[str], list[list[str]]]:
+    header = ["store", "domain", "planner", "n", "m", "feasible entries",
+              "instances with a feasible constraint", "RAWPLANNER solved", "config hash"]
+    rows = []
+    for res in results:
+        n, m = res.shape
+        rows.append([str(res.path), res.domain, res.planner, str(n), str(m),
+                     f"{res.feasible.mean():.1%}", f"{int(res.eligible.sum())}/{n}",
+                     f"{int(res.raw_feasible.sum())}/{n}", res.config_hash])
+    return header, rows
+
+
+def _matrix(res: StoreResults) -> dict:
+    return {"times": res.times, "feasible": res.feasible,
+            "failure_rule": res.settings.get("failure_rule", "magnitude")}
+
+
+def _render_first_choices(res: StoreResults, count: int, out_dir: Path, tag: str):
+    """Re-plan BOX's first choice on ``count`` instances and render it: (path, caption)."""
+    from pipeline.worker import domain_for, entry_seed
+
+    if count <= 0 or "box" not in res.order:
+        return []
+    domain = domain_for(res.spec)
+    rows = np.flatnonzero(res.eligible)[:count]
+    out = []
+    for i in rows:
+        j = int(res.order["box"][i, 0])
+        spec = json.loads(str(res.instance_specs[i]))
+        plan = domain.plan(domain.check_instance(spec), res.theta[j],
+                           seed=entry_seed(res.seed, int(res.instance_seeds[i]), j))
+        path = domain.render(spec, plan, out_dir / f"{tag}-instance{i}-constraint{j}.png",
+                             constraint=res.theta[j])
+        verdict = (f"feasible, path length {plan.length:.3f}" if plan.feasible
+                   else f"infeasible ({plan.status.name})")
+        agrees = "as in D" if plan.feasible == bool(res.feasible[i, j]) else "DIFFERS FROM D"
+        out.append((path, f"{res.label}, instance {i}: BOX's first choice is constraint {j} "
+                          f"({verdict}, {agrees}); BOX found a feasible one at try "
+                          f"{int(np.argmax(res.feasible[i, res.order['box'][i]])) + 1}"))
+    return out
+
+
+def make_report(paths, out_dir: Path, settings: dict, say=print) -> dict[str, Path]:
+    """Write the report for the stores at ``paths`` into ``out_dir``; return what was written.
+
+    ``settings``: the ``report.*`` config (renders, fractions, repeats, c_grid, c_folds,
+    formats).
+    """
+    results = [load(p) for p in paths]
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    formats = settings["formats"]
+    doc = Document("BOX: constraint selection in score space")
+    written = {}
+    doc.text(f"{len(results)} store(s). Times are seconds of planning (plus each selector's "
+             "own compute time in the leave-one-out tables) on the machine that computed the "
+             "store. Intervals are 95 %: Student-t on means (with heavy-tailed times and few "
+             "instances the lower end can fall below zero; figures then draw the bar to the "
+             "axis), paired bootstrap on ratios.")
+    doc.heading("Datasets")
+    doc.table(*_dataset_rows(results))
+
+    doc.heading("Time to first feasible plan")
+    for res in results:
+        doc.heading(f"{res.label} ({res.shape[0]} x {res.shape[1]})", 3)
+        doc.table(*summary_rows(res))
+    written["fig3"] = figures.first_feasible(results, out_dir, formats)["png"]
+    doc.image(written["fig3"], "Fig. 3 analogue: mean time to first feasible plan per "
+              "selector, leave-one-out, log scale, bars: 95 % interval.")
+
+    doc.heading("Best score versus time")
+    written["fig4"] = figures.score_versus_time(results, out_dir, formats)["png"]
+    doc.image(written["fig4"], "Fig. 4 analogue: mean best score found by each time over "
+              "instances with a feasible constraint; dashed magenta: ORACLE's optimum, dotted: "
+              f"{figures.OPTIMAL_SHARE:.0%} of the way from the failure value to it; the axis "
+              "ends at 3x the time the first curve reaches that line.")
+
+    doc.heading("Learning curve")
+    doc.text("Each repeat holds out 20 % of the instances and trains on growing shares of the "
+             f"rest ({settings['repeats']} repeats, planning time only).")
+    curves = []
+    for res in results:
+        selectors = [s for s in ("box", "static") if s in res.order]
+        points = box_core.learning_curve(res.scores, selectors=selectors,
+                                         fractions=settings["fractions"],
+                                         repeats=settings["repeats"], seed=res.seed,
+                                         **_matrix(res))
+        curves.append(points)
+        doc.heading(res.label, 3)
+        doc.table(["selector", "share of rows", "training instances", "mean time (s)",
+                   "95% CI", "held-out runs"],
+                  [[figures.label(p.selector), f"{p.fraction:g}", str(p.n_train), _num(p.mean),
+                    f"[{_num(p.low)}, {_num(p.high)}]", str(p.rows)] for p in points])
+    written["learning"] = figures.learning_curves(results, curves, out_dir, formats)["png"]
+    doc.image(written["learning"], "Time to first feasible plan of BOX and STATIC versus the "
+              "number of training instances; bands: 95 % interval.")
+
+    doc.heading("Sensitivity to C")
+    doc.text("The paper fixes C = 1.96. Here each instance is also run with C chosen by "
+             f"{settings['c_folds']}-fold nested cross-validation: the C of a fold is the one "
+             "with the lowest leave-one-out mean over the other folds only, so a held-out "
+             "instance never influences its own C.")
+    tunings = []
+    for res in results:
+        tuning = box_core.tune_c(res.scores, grid=settings["c_grid"], folds=settings["c_folds"],
+                                 seed=res.seed, **_matrix(res))
+        tunings.append(tuning)
+        s = tuning.summary()
+        doc.heading(res.label, 3)
+        rows = [[f"{c:g}", _num(v[0]), f"[{_num(v[1])}, {_num(v[2])}]"]
+                for c, v in tuning.sensitivity.items()]
+        doc.table(["C", "mean time (s), leave-one-out", "95% CI"], rows)
+        doc.table(["BOX on the same folds", "mean time (s)", "95% CI", "C per fold"], [
+            ["C tuned by nested CV", _num(s["tuned"][0]),
+             f"[{_num(s['tuned'][1])}, {_num(s['tuned'][2])}]",
+             ", ".join(f"{c:g}" for c in tuning.chosen)],
+            [f"C = {tuning.fixed_c:g}", _num(s["fixed"][0]),
+             f"[{_num(s['fixed'][1])}, {_num(s['fixed'][2])}]", "fixed"]])
+    written["c"] = figures.c_sensitivity(results, tunings, out_dir, formats)["png"]
+    doc.image(written["c"], "BOX's mean time to first feasible plan versus C (leave-one-out) "
+              "and the nested-CV tuned result.")
+
+    doc.heading("BOX's first choice on a few instances")
+    render_dir = out_dir / "renders"
+    render_dir.mkdir(exist_ok=True)
+    for k, res in enumerate(results):
+        for path, caption in _render_first_choices(res, settings["renders"], render_dir,
+                                                   f"store{k}"):
+            doc.image(path, caption)
+    written["md"], written["html"] = doc.write(out_dir)
+    numbers = {str(res.path): {"summary": res.summary,
+                               "learning_curve": [asdict(p) for p in curve],
+                               "c_tuning": tuning.summary()}
+               for res, curve, tuning in zip(results, curves, tunings, strict=True)}
+    written["json"] = out_dir / "report.json"
+    written["json"].write_text(json.dumps(numbers, indent=1, default=float))
+    say(f"report: {written['html']}")
+    return written

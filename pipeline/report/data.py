@@ -1,0 +1,119 @@
+"""What a report needs from one finished store, read once into plain arrays."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.evaluation import RAWPLANNER, load_matrix
+from pipeline.store import ScoreStore, StoreError
+
+
+def domain_spec(store: ScoreStore) -> dict:
+    """The {"name", "config", "planner"} a store was made with (what workers receive)."""
+    config = store.attrs.get("config") or {}
+    domain = dict(config.get("domain") or {})
+    if "name" not in domain or "planner" not in config:
+        raise StoreError(f"{store.path}: the store's attributes hold no domain config "
+                         "(damaged store?)")
+    name = domain.pop("name")
+    return {"name": name, "config": domain, "planner": config["planner"]}
+
+
+@dataclass(eq=False)
+class StoreResults:
+    """One store's score matrix and its stored leave-one-out evaluation."""
+
+    path: Path
+    config_hash: str
+    seed: int
+    spec: dict
+    scores: np.ndarray  # -(length) where feasible, 0 elsewhere (box_core fills failures)
+    feasible: np.ndarray
+    times: np.ndarray
+    theta: np.ndarray
+    instance_specs: np.ndarray
+    instance_seeds: np.ndarray
+    raw_feasible: np.ndarray
+    raw_time: np.ndarray
+    raw_length: np.ndarray
+    summary: dict  # box_core.Summary.to_dict(), as stored by stage evaluate
+    settings: dict  # evaluate.* the evaluation ran with
+    failure_value: float
+    time_grid: np.ndarray
+    eligible: np.ndarray
+    optimal_score: np.ndarray
+    first_feasible_time: dict[str, np.ndarray]
+    best_score: dict[str, np.ndarray]
+    order: dict[str, np.ndarray]
+
+    @property
+    def domain(self) -> str:
+        return self.spec["name"]
+
+    @property
+    def planner(self) -> str:
+        return self.spec["planner"]["name"]
+
+    @property
+    def label(self) -> str:
+        return f"{self.domain} / {self.planner}"
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.scores.shape
+
+    @property
+    def selectors(self) -> list[str]:
+        return [line["name"] for line in self.summary["selectors"]]
+
+    def line(self, name: str) -> dict:
+        for line in self.summary["selectors"]:
+            if line["name"] == name:
+                return line
+        raise KeyError(name)
+
+    def raw_curve(self) -> np.ndarray:
+        """RAWPLANNER's best score versus ``time_grid``, per row (its one plan, when found)."""
+        reached = self.raw_feasible[:, None] & (self.raw_time[:, None] <= self.time_grid[None])
+        return np.where(reached, -self.raw_length[:, None], self.failure_value)
+
+
+def load(path) -> StoreResults:
+    """Read a store whose ``evaluate`` stage has finished (StoreError naming what is missing)."""
+    store = ScoreStore.open(Path(path).expanduser().absolute())
+    info = store.stage_info("evaluate")
+    if info is None:
+        raise StoreError(f"{store.path} has no evaluation yet; run stage=evaluate (or "
+                         "stage=all) on it first")
+    scores, feasible, times, theta = load_matrix(store)
+    evaluated = [line["name"] for line in info["summary"]["selectors"]]
+    fft, best, order = {}, {}, {}
+    for name in evaluated:
+        fft[name] = store.array(f"evaluation/{name}/first_feasible_time")[...]
+        if name != RAWPLANNER:
+            best[name] = store.array(f"evaluation/{name}/best_score")[...]
+            order[name] = store.array(f"evaluation/{name}/order")[...]
+    has_raw = store.stage_info("raw") is not None
+    n = scores.shape[0]
+    attrs = store.attrs
+    return StoreResults(
+        path=store.path,
+        config_hash=attrs.get("config_hash", "?"),
+        seed=int(attrs.get("config", {}).get("seed", 0)),
+        spec=domain_spec(store),
+        scores=scores, feasible=feasible, times=times, theta=theta,
+        instance_specs=store.array("instances/spec")[...],
+        instance_seeds=store.array("instances/seed")[...],
+        raw_feasible=store.array("raw/feasible")[...] if has_raw else np.zeros(n, bool),
+        raw_time=store.array("raw/time")[...] if has_raw else np.full(n, np.nan),
+        raw_length=store.array("raw/length")[...] if has_raw else np.full(n, np.nan),
+        summary=info["summary"], settings=info["settings"],
+        failure_value=float(info["failure_value"]),
+        time_grid=store.array("evaluation/time_grid")[...],
+        eligible=store.array("evaluation/eligible")[...],
+        optimal_score=store.array("evaluation/optimal_score")[...],
+        first_feasible_time=fft, best_score=best, order=order,
+    )

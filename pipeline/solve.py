@@ -1,0 +1,233 @@
+"""Stage ``solve``: new instances solved live, the prior fitted from a store.
+
+The leave-one-out figures replay planning times recorded in D; this stage checks the claim
+with the real planner.  For each fresh instance (a seed the store never used), every chosen
+selector proposes constraints one at a time and each proposal is planned for real, within a
+budget of planning calls or seconds; RAWPLANNER runs on the same instance.  Times are wall
+clock inside one worker process: selector compute plus planning, from the first proposal to
+the end of the first feasible plan.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+import box_core
+from box_core.stats import mean_ci, paired_ratio
+from pipeline.evaluation import RAWPLANNER, load_matrix
+from pipeline.report.data import domain_spec
+from pipeline.store import ScoreStore, StoreError
+
+#: Fresh instance i of run ``seed`` is drawn from SeedSequence([seed, SOLVE_STREAM, i]);
+#: the store's instances use SeedSequence([seed, i]).  Collisions are skipped explicitly.
+SOLVE_STREAM = 2**32 + 1
+
+
+def fresh_seeds(seed: int, n: int, used) -> list[int]:
+    used = {int(s) for s in used}
+    out, i = [], 0
+    while len(out) < n:
+        s = int(np.random.SeedSequence([seed, SOLVE_STREAM, i]).generate_state(1)[0])
+        if s not in used:
+            out.append(s)
+            used.add(s)
+        i += 1
+    return out
+
+
+def training_matrix(store: ScoreStore, use_incomplete: bool, failure_rule: str):
+    """(filled scores of the usable rows, theta, failure value, rows used)."""
+    if store.stage_info("constraints") is None or not store.has("scores/done"):
+        raise StoreError(f"{store.path} has no score matrix yet; run stage=generate first")
+    done = store.done("scores")
+    complete = done.all(axis=1)
+    if store.stage_info("scores") is None:
+        if not use_incomplete:
+            raise StoreError(
+                f"{store.path} is incomplete: {int(done.sum())} of {done.size} score entries "
+                f"done ({int(complete.sum())} complete rows); finish it with stage=generate, "
+                "or pass solve.use_incomplete=true to fit on the complete rows only")
+        if complete.sum() < 3:
+            raise StoreError(f"{store.path} has only {int(complete.sum())} complete rows; "
+                             "the prior needs at least 3")
+        feasible = store.array("scores/feasible")[...][complete]
+        length = store.array("scores/length")[...][complete]
+        theta = store.array("constraints/theta")[...]
+        scores = np.where(feasible, -np.nan_to_num(length, nan=0.0), 0.0)
+    else:
+        scores, feasible, _, theta = load_matrix(store)
+    if not feasible.any():
+        raise StoreError(f"{store.path}: no feasible entry in the training rows; BOX has "
+                         "nothing to learn from")
+    d = box_core.failure_value(scores, feasible, failure_rule)
+    return box_core.fill_failures(scores, feasible, d), theta, d, np.flatnonzero(complete)
+
+
+def solve_instance(spec: dict, instance: dict, inst_seed: int, run_seed: int, train, theta,
+                   d: float, selectors: list[str], c: float, max_evaluations: int,
+                   max_seconds: float | None) -> dict:
+    """One fresh instance: every selector live, then RAWPLANNER (runs in a worker)."""
+    from pipeline.worker import RAW_ENTRY, domain_for, entry_seed
+
+    domain = domain_for(spec)
+    inst = domain.check_instance(instance)
+    out = {"seed": inst_seed, "selectors": {}}
+    for k, name in enumerate(selectors):
+        params = {"c": c} if name == "box" else {}
+        sel = box_core.make_selector(name, train, features=theta, seed=[run_seed, inst_seed, k],
+                                     **params)
+        tries, best, first = [], None, math.nan
+        start = time.perf_counter()
+        for _ in range(min(max_evaluations, theta.shape[0])):
+            j = sel.propose()
+            plan = domain.plan(inst, theta[j], seed=entry_seed(run_seed, inst_seed, j))
+            sel.update(j, plan.score if plan.feasible else d)
+            elapsed = time.perf_counter() - start
+            tries.append({"constraint": j, "status": plan.status.name, "time": plan.time,
+                          "length": plan.length if plan.feasible else None})
+            if plan.feasible:
+                if math.isnan(first):
+                    first = elapsed
+                if best is None or plan.score > best[1].score:
+                    best = (j, plan)
+            if max_seconds is not None and elapsed >= max_seconds:
+                break
+        out["selectors"][name] = {
+            "first_feasible_time": first, "tries": tries,
+            "first_feasible_try": next((t + 1 for t, r in enumerate(tries) if r["length"]
+                                        is not None), None),
+            "best_score": best[1].score if best else d,
+            "best_constraint": best[0] if best else None,
+            "best_path": best[1].path if best else None}
+    raw = domain.raw_plan(inst, seed=entry_seed(run_seed, inst_seed, RAW_ENTRY))
+    out["selectors"][RAWPLANNER] = {
+        "first_feasible_time": raw.time if raw.plan.feasible else math.nan,
+        "tries": raw.tries, "first_feasible_try": raw.tries if raw.plan.feasible else None,
+        "best_score": raw.plan.score if raw.plan.feasible else d,
+        "best_constraint": raw.constraint.tolist() if raw.plan.feasible else None,
+        "best_path": raw.plan.path if raw.plan.feasible else None}
+    return out
+
+
+def live_table(records: list[dict], names: list[str], level: float = 0.95):
+    """Header and rows: live time to first feasible per method and speed-up over RAWPLANNER."""
+    times = {n: np.array([r["selectors"][n]["first_feasible_time"] for r in records],
+                         dtype=np.float64) for n in names}
+    raw = times.get(RAWPLANNER)
+    header = ["method", "solved", "mean (s)", "95% CI", "median (s)", "tries", "best score",
+              "x faster than RAWPLANNER", "95% CI"]
+    rows = []
+    for n in names:
+        t = times[n]
+        found = ~np.isnan(t)
+        mean, lo, hi = mean_ci(t, level)
+        tries = [r["selectors"][n]["first_feasible_try"] for r in records]
+        tries = [x for x in tries if x is not None]
+        best = np.mean([r["selectors"][n]["best_score"] for r in records])
+        ratio = paired_ratio(raw, t, level) if raw is not None else (math.nan,) * 3
+        rows.append([n.upper() if n != "pembo" else "PEM-BO", f"{int(found.sum())}/{t.size}",
+                     _num(mean), f"[{_num(lo)}, {_num(hi)}]",
+                     _num(float(np.median(t[found])) if found.any() else math.nan),
+                     _num(float(np.mean(tries)) if tries else math.nan, 3), _num(best),
+                     _num(ratio[0], 3), f"[{_num(ratio[1], 3)}, {_num(ratio[2], 3)}]"])
+    return header, rows
+
+
+def _num(x, digits: int = 4) -> str:
+    return "-" if x is None or math.isnan(x) else f"{x:.{digits}g}"
+
+
+def _jsonable(record: dict) -> dict:
+    out = {"seed": record["seed"], "selectors": {}}
+    for name, r in record["selectors"].items():
+        clean = {k: v for k, v in r.items() if k != "best_path"}
+        clean = {k: (None if isinstance(v, float) and math.isnan(v) else v)
+                 for k, v in clean.items()}
+        out["selectors"][name] = clean
+    return out
+
+
+def solve(run, out_dir: Path) -> dict:
+    """Run stage solve for ``run`` (its store must exist); write results into ``out_dir``."""
+    from rich.table import Table
+
+    from pipeline.execution import Task, run_tasks
+    from pipeline.worker import domain_for
+
+    cfg, settings = run.cfg, run.plain["solve"]
+    if settings["n"] < 1:
+        raise ValueError(f"solve.n must be >= 1, got {settings['n']}")
+    budget = settings["max_evaluations"]
+    if budget is not None and budget < 1:
+        raise ValueError(f"solve.max_evaluations must be >= 1 or null, got {budget}")
+    if settings["max_seconds"] is not None and settings["max_seconds"] <= 0:
+        raise ValueError(f"solve.max_seconds must be > 0 or null, got {settings['max_seconds']}")
+    names = list(dict.fromkeys(s for s in settings["selectors"] if s != RAWPLANNER))
+    for name in names:
+        if name == "oracle":
+            raise ValueError("solve.selectors: oracle needs the true scores of a new instance, "
+                             "which live solving does not have")
+        box_core.selectors.check_selector(name, {"c": 1.0} if name == "box" else {},
+                                          features=np.zeros((1, 1)))
+    store = ScoreStore.open(run.path)
+    spec = domain_spec(store)
+    train, theta, d, rows = training_matrix(store, settings["use_incomplete"],
+                                            run.plain["evaluate"]["failure_rule"])
+    seed = int(store.attrs["config"]["seed"])
+    domain = domain_for(spec)
+    seeds = fresh_seeds(seed, settings["n"], store.array("instances/seed")[...])
+    instances = [domain.sample_instance(s) for s in seeds]
+    run.say(f"solve: {len(seeds)} fresh {spec['name']} instances, prior from {rows.size} rows "
+            f"x {theta.shape[0]} constraints of {store.path}")
+    records: dict[int, dict] = {}
+    max_eval = budget or theta.shape[0]
+    tasks = [Task(key=f"solve-{store.attrs['config_hash']}-{k}-{s}", fn=solve_instance,
+                  args=(spec, instances[k], s, seed, train, theta, d, names,
+                        run.plain["evaluate"]["c"], max_eval, settings["max_seconds"]),
+                  entries=1, block=k) for k, s in enumerate(seeds)]
+    run_tasks(run.client, tasks, lambda task, rec: records.__setitem__(task.block, rec),
+              retries=cfg.cluster.retries, label="solve", console=run.console,
+              progress=cfg.progress)
+    ordered = [records[k] for k in range(len(seeds))]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    plans = out_dir / "plans"
+    plans.mkdir(exist_ok=True)
+    for k, rec in enumerate(ordered):
+        _save_best(domain, instances[k], rec, theta, plans / f"instance{k:03d}")
+    methods = [*names, RAWPLANNER]
+    header, rows_ = live_table(ordered, methods)
+    table = Table(title=f"live solving: {len(seeds)} fresh instances, budget {max_eval} calls"
+                        + (f" / {settings['max_seconds']} s" if settings["max_seconds"] else ""))
+    for col in header:
+        table.add_column(col)
+    for row in rows_:
+        table.add_row(*row)
+    run.console.print(table)
+    doc = {"store": str(store.path), "config_hash": store.attrs["config_hash"],
+           "training_rows": int(rows.size), "failure_value": d, "settings": settings,
+           "instances": instances, "records": [_jsonable(r) for r in ordered],
+           "table": {"header": header, "rows": rows_}}
+    (out_dir / "solve.json").write_text(json.dumps(doc, indent=1))
+    run.say(f"solve: results in {out_dir}")
+    return doc
+
+
+def _save_best(domain, instance: dict, record: dict, theta, stem: Path) -> None:
+    """The best plan any method found on this instance: path as .npz and a render."""
+    best = max(record["selectors"].items(), key=lambda kv: kv[1]["best_score"])
+    name, r = best
+    if r["best_path"] is None:
+        return
+    constraint = (np.asarray(r["best_constraint"], dtype=np.float64) if name == RAWPLANNER
+                  else theta[r["best_constraint"]])
+    np.savez(stem.with_suffix(".npz"), path=r["best_path"], constraint=constraint,
+             method=name, score=r["best_score"])
+    from pipeline.planning import PlanResult, Status
+
+    plan = PlanResult(Status.OK, path=r["best_path"], length=-r["best_score"])
+    domain.render(instance, plan, stem.with_suffix(".png"), constraint=constraint)
