@@ -1,0 +1,87 @@
+"""``box status``, ``box show``, ``box export`` and ``box evaluate`` on a pipeline store."""
+
+import csv
+import json
+import shutil
+
+import numpy as np
+import zarr
+from typer.testing import CliRunner
+
+from pipeline.cli import app
+
+runner = CliRunner()
+
+
+def test_status_reports_stages_and_exit_codes(made, tmp_path):
+    store, _ = made
+    res = runner.invoke(app, ["status", str(store), "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.output)
+    assert all(doc["stages"][s]["finished"] for s in ("instances", "raw", "constraints",
+                                                       "scores", "evaluate"))
+    assert doc["stages"]["scores"]["done"] == doc["stages"]["scores"]["total"] == 24 * 15
+    copy = tmp_path / "c.zarr"
+    shutil.copytree(store, copy)
+    chunk = copy / "scores" / "length" / "c" / "1" / "2"
+    chunk.write_bytes(chunk.read_bytes()[:-3] + b"xyz")
+    res = runner.invoke(app, ["status", str(copy)])
+    assert res.exit_code == 1 and "corrupted" in res.output
+    res = runner.invoke(app, ["status", str(tmp_path / "missing.zarr")])
+    assert res.exit_code == 2 and "no store" in res.output
+
+
+def test_show_replans_the_stored_entry_and_writes_a_png(made, tmp_path):
+    store, _ = made
+    feasible = zarr.open_array(store / "scores" / "feasible", mode="r")[...]
+    i, j = map(int, np.argwhere(feasible)[0])
+    out = tmp_path / "entry.png"
+    res = runner.invoke(app, ["show", str(store), "-i", str(i), "-c", str(j), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    assert "feasible, length" in res.output and "as in the score matrix" in res.output
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    res = runner.invoke(app, ["show", str(store), "-i", "3", "-o", str(tmp_path / "i.png")])
+    assert res.exit_code == 0 and (tmp_path / "i.png").exists()
+    for args, message in ((["-i", "24"], "out of range"), (["-i", "0", "-c", "15"],
+                                                           "out of range")):
+        res = runner.invoke(app, ["show", str(store), *args, "-o", str(tmp_path / "x.png")])
+        assert res.exit_code == 2 and message in res.output
+
+
+def test_export_npz_round_trips_through_box_evaluate(made, tmp_path):
+    store, _ = made
+    out = tmp_path / "d.npz"
+    res = runner.invoke(app, ["export", str(store), "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    with np.load(out) as data:
+        length = zarr.open_array(store / "scores" / "length", mode="r")[...]
+        feasible = data["feasible"]
+        np.testing.assert_array_equal(data["scores"][feasible], -length[feasible])
+        assert json.loads(str(data["metadata"]))["complete"] is True
+        assert data["features"].shape == (15, 2)
+    a = runner.invoke(app, ["evaluate", str(out), "--json", "--no-overhead"])
+    b = runner.invoke(app, ["evaluate", str(store), "--json", "--no-overhead"])
+    assert a.exit_code == b.exit_code == 0
+    sa, sb = json.loads(a.output)["selectors"], json.loads(b.output)["selectors"]
+    assert [s["mean_time"] for s in sa] == [s["mean_time"] for s in sb]
+
+
+def test_export_csv_holds_one_row_per_entry(made, tmp_path):
+    store, _ = made
+    res = runner.invoke(app, ["export", str(store), "--format", "csv", "-o", str(tmp_path / "c")])
+    assert res.exit_code == 0, res.output
+    with open(tmp_path / "c" / "entries.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 24 * 15
+    status = zarr.open_array(store / "scores" / "status", mode="r")[...]
+    assert [int(r["status"]) for r in rows] == status.reshape(-1).tolist()
+    meta = json.loads((tmp_path / "c" / "metadata.json").read_text())
+    assert meta["config"]["domain"]["name"] == "planar"
+
+
+def test_export_refuses_bad_formats_and_foreign_paths(made, tmp_path):
+    res = runner.invoke(app, ["export", str(made[0]), "--format", "xlsx"])
+    assert res.exit_code == 2 and "unknown format" in res.output
+    (tmp_path / "mine").mkdir()
+    res = runner.invoke(app, ["export", str(tmp_path / "mine")])
+    assert res.exit_code == 2
