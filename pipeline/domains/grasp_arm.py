@@ -30,6 +30,7 @@ from pipeline.domains.base import (
     require,
 )
 from pipeline.planning import PlanResult, RRTConnect, Status
+from pipeline.planning.trajopt import trajopt_plan
 from pipeline.sim import panda as P
 from pipeline.sim.world import add_box, connect
 
@@ -286,8 +287,10 @@ class GraspArmDomain(Domain):
         if goal is None:  # no solution at all, or only colliding ones
             status = Status.GOAL_IN_COLLISION if reached else Status.NO_IK
             return PlanResult(status, checks=ik_checks)
-        budget = self.rrt.budget(arm.check)
-        result = self.rrt.plan(P.HOME, goal, budget, seed=seed)
+        if self.planner.name == "trajopt":
+            result = trajopt_plan(arm, P.HOME, goal, self.planner)
+        else:
+            result = self.rrt.plan(P.HOME, goal, self.rrt.budget(arm.check), seed=seed)
         result.checks += ik_checks
         return result
 

@@ -36,7 +36,7 @@ ou.setLogLevel(ou.LogLevel.LOG_NONE)
 Checker = Callable[[np.ndarray], tuple[bool, int]]
 
 
-PLANNERS = ("rrt_connect", "noop")
+PLANNERS = ("rrt_connect", "trajopt", "noop")
 
 
 @dataclass
@@ -44,6 +44,8 @@ class PlannerSettings:
     """Settings of one planning call (schema of ``conf/planner/*.yaml``).
 
     ``noop`` plans nothing: the pipeline records "skipped" for every score entry.
+    ``trajopt`` (:mod:`pipeline.planning.trajopt`) uses the ``trajopt_*`` keys, plus
+    ``resolution`` for the dense re-check of its result and ``wall_cap_s``.
     """
 
     name: str = "rrt_connect"
@@ -52,6 +54,12 @@ class PlannerSettings:
     resolution: float = 0.01
     range: float = 0.0
     shortcut_attempts: int = 40
+    trajopt_waypoints: int = 20
+    trajopt_margin: float = 0.02  # metres
+    trajopt_penalty: float = 10.0  # initial hinge coefficient
+    trajopt_penalty_rounds: int = 4  # each multiplies the coefficient by 10
+    trajopt_iterations: int = 30  # SQP iterations per call, over all rounds
+    trajopt_trust_radius: float = 0.3  # radians per joint
 
     def __post_init__(self):
         if self.name not in PLANNERS:
@@ -64,6 +72,23 @@ class PlannerSettings:
             raise ValueError(f"planner.resolution must be positive, got {self.resolution}")
         if self.range < 0 or self.shortcut_attempts < 0:
             raise ValueError("planner.range and planner.shortcut_attempts must be >= 0")
+        if self.trajopt_waypoints < 3:
+            raise ValueError(f"planner.trajopt_waypoints must be >= 3, got "
+                             f"{self.trajopt_waypoints}")
+        if (self.trajopt_margin < 0 or self.trajopt_penalty <= 0
+                or self.trajopt_penalty_rounds < 1 or self.trajopt_iterations < 1
+                or self.trajopt_trust_radius <= 0):
+            raise ValueError("planner.trajopt_*: margin must be >= 0, penalty and "
+                             "trust_radius > 0, penalty_rounds and iterations >= 1")
+
+    def trajopt_options(self):
+        from pipeline.planning.trajopt import TrajOptOptions
+
+        return TrajOptOptions(waypoints=self.trajopt_waypoints, margin=self.trajopt_margin,
+                              penalty=self.trajopt_penalty,
+                              penalty_rounds=self.trajopt_penalty_rounds,
+                              iterations=self.trajopt_iterations,
+                              trust_radius=self.trajopt_trust_radius)
 
 
 def interpolate(a: np.ndarray, b: np.ndarray, resolution: float) -> np.ndarray:

@@ -25,6 +25,8 @@ SHOULDER_HEIGHT = 0.333
 class Panda:
     """One Panda arm in ``client``; fingers held open."""
 
+    lower, upper = LOWER, UPPER
+
     def __init__(self, client: int, base_position, *, finger_opening: float = 0.04):
         self.client = client
         self.base_position = np.asarray(base_position, float)
@@ -33,6 +35,7 @@ class Panda:
                                 physicsClientId=client)
         for j in FINGER_JOINTS:
             pb.resetJointState(self.body, j, finger_opening, physicsClientId=client)
+        self.finger_positions = (finger_opening,) * len(FINGER_JOINTS)
         self.set(HOME)
         self._filter_self_pairs()
         self.q = HOME.copy()
@@ -72,6 +75,39 @@ class Panda:
             if self.collides_at(q):
                 return False, k + 1
         return True, len(states)
+
+    def obstacles(self) -> list[int]:
+        """Every other body in the client (furniture, boxes, the other arm)."""
+        c = self.client
+        ids = (pb.getBodyUniqueId(i, physicsClientId=c) for i in
+               range(pb.getNumBodies(physicsClientId=c)))
+        return [b for b in ids if b != self.body]
+
+    def distances(self, q, bodies, query: float) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distances (k,) of the arm's links to ``bodies`` closer than ``query`` at
+        ``q``, and their gradients (k, 7): the contact normal (from the obstacle towards
+        the arm) times the positional Jacobian of the link at its closest point."""
+        c = self.client
+        self.set(q)
+        points = [pt for b in bodies for pt in pb.getClosestPoints(
+            self.body, b, query, physicsClientId=c) if pt[3] != -1]
+        if not points:
+            return np.zeros(0), np.zeros((0, 7))
+        joints = [*map(float, q), *self.finger_positions]
+        zeros = [0.0] * len(joints)
+        d = np.empty(len(points))
+        g = np.empty((len(points), 7))
+        for k, pt in enumerate(points):
+            link, on_arm, normal = pt[3], np.asarray(pt[5]), np.asarray(pt[7])
+            com, orn = pb.getLinkState(self.body, link, computeForwardKinematics=True,
+                                       physicsClientId=c)[:2]
+            rot = np.asarray(pb.getMatrixFromQuaternion(orn)).reshape(3, 3)
+            local = rot.T @ (on_arm - np.asarray(com))
+            linear, _ = pb.calculateJacobian(self.body, link, local.tolist(), joints, zeros,
+                                             zeros, physicsClientId=c)
+            d[k] = pt[8]
+            g[k] = normal @ np.asarray(linear)[:, :7]
+        return d, g
 
     def tcp_pose(self, q) -> tuple[np.ndarray, np.ndarray]:
         self.set(q)

@@ -1,0 +1,250 @@
+"""Trajectory optimisation in the manner of TrajOpt (Schulman et al., 2014): sequential convex
+optimisation of a joint-space trajectory with an exact (hinge) collision penalty.
+
+The trajectory has ``waypoints`` configurations from the start to the goal (both fixed);
+the interior ones are the variables.  Each iteration linearises the signed distance of every
+close (link, obstacle) pair at every interior waypoint,
+
+    d(q) ~ d(q0) + g^T (q - q0),   g = n^T J(q0)   (contact normal times the link's
+                                                     positional Jacobian at the point)
+
+and solves the convex subproblem
+
+    minimise   sum_t |x_{t+1} - x_t|^2  +  mu * sum_c s_c
+    subject to s_c >= margin - d_c - g_c^T (x_t(c) - x0_t(c)),  s_c >= 0,
+               joint limits, |x - x0|_inf <= trust radius
+
+plus a proximal term (a QP; solved through its dual, a bound-constrained quadratic in the
+hinge multipliers, with scipy's L-BFGS-B).  A step is kept when the true merit (cost plus mu times
+the true hinge) improves by at least a quarter of what the model predicted; then the trust
+region grows, otherwise it shrinks.  When a penalty round converges with the trajectory
+still closer than the margin somewhere, mu is multiplied by ``penalty_scale``.
+
+Initialisation is the straight line in joint space, as in TrajOpt; nothing is random, so the
+result is a function of the inputs alone.  The waypoints are only checked at the waypoints
+(no swept volumes): the caller re-checks the result densely before calling it feasible.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+from scipy.optimize import minimize
+
+from pipeline.planning.result import PlanResult, Status, path_length
+
+#: Initial weight of the proximal term rho/2 |z - z0|^2 that, with the per-joint step limit,
+#: keeps each step where the linearisation holds (halved after a good step, x4 after a bad).
+PROXIMAL = 1.0
+
+#: ``contacts(q) -> (d, g)``: signed distances (k,) of the pairs closer than the query
+#: distance at configuration q, and their gradients (k, dof).
+DistanceModel = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class TrajOptOptions:
+    waypoints: int = 20
+    margin: float = 0.02  # safety margin on signed distance, metres
+    penalty: float = 10.0  # initial hinge coefficient mu
+    penalty_scale: float = 10.0
+    penalty_rounds: int = 4
+    iterations: int = 30  # SQP iterations in total, over all rounds
+    trust_radius: float = 0.3  # initial trust region, radians per joint
+    min_trust: float = 1e-3
+    tolerance: float = 1e-4  # stop a round when the model predicts less improvement
+
+
+@dataclass
+class TrajOptResult:
+    trajectory: np.ndarray  # (waypoints, dof)
+    converged: bool  # no pair closer than the margin at any waypoint
+    min_distance: float
+    iterations: int
+    distance_queries: int  # configurations whose distances were computed
+    time: float
+
+
+def straight_line(start: np.ndarray, goal: np.ndarray, count: int) -> np.ndarray:
+    t = np.linspace(0.0, 1.0, count)[:, None]
+    return start + t * (goal - start)
+
+
+class _Problem:
+    """The trajectory's variables, cost and linearised constraints."""
+
+    def __init__(self, start, goal, lower, upper, opts: TrajOptOptions, contacts: DistanceModel):
+        self.start, self.goal = np.asarray(start, float), np.asarray(goal, float)
+        self.dof = self.start.size
+        self.inner = opts.waypoints - 2
+        self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
+        self.opts = opts
+        self._contacts = contacts
+        self.queries = 0
+        # cost = |D z - e|^2 with D the finite-difference operator on the interior waypoints
+        n, k = self.inner, self.dof
+        diff = np.zeros(((n + 1) * k, n * k))
+        for t in range(n + 1):
+            if t < n:
+                diff[t * k:(t + 1) * k, t * k:(t + 1) * k] = np.eye(k)
+            if t > 0:
+                diff[t * k:(t + 1) * k, (t - 1) * k:t * k] -= np.eye(k)
+        offset = np.zeros((n + 1) * k)
+        offset[:k] = self.start
+        offset[-k:] = -self.goal
+        self.D, self.e = diff, offset
+        self.H = 2 * diff.T @ diff
+
+    def cost(self, z) -> float:
+        r = self.D @ z - self.e
+        return float(r @ r)
+
+    def linearise(self, z):
+        """Distances (K,) of the close pairs at every interior waypoint and at the middle of
+        every segment, and their gradients with respect to z (K, n).  A midpoint's
+        gradient is shared half and half by the segment's two waypoints (a fixed end takes
+        none): a cheap stand-in for TrajOpt's swept-volume distances that keeps segments
+        from cutting through thin obstacles between waypoints."""
+        k, n = self.dof, self.inner * self.dof
+        x = np.vstack([self.start, z.reshape(self.inner, k), self.goal])
+        ds, gs = [], []
+        points = [(x[t], ((t - 1, 1.0),)) for t in range(1, self.inner + 1)]
+        points += [(0.5 * (x[t] + x[t + 1]), ((t - 1, 0.5), (t, 0.5)))
+                   for t in range(self.inner + 1)]
+        for q, weights in points:
+            dist, grad = self._contacts(q)
+            self.queries += 1
+            if not len(dist):
+                continue
+            grad = np.asarray(grad, float).reshape(len(dist), k)
+            G = np.zeros((len(dist), n))
+            for t, w in weights:
+                if 0 <= t < self.inner:
+                    G[:, t * k:(t + 1) * k] = w * grad
+            ds.append(np.asarray(dist, float))
+            gs.append(G)
+        if not ds:
+            return np.zeros(0), np.zeros((0, n))
+        return np.concatenate(ds), np.vstack(gs)
+
+    def hinge(self, d) -> float:
+        return float(np.maximum(0.0, self.opts.margin - d).sum())
+
+    def model(self, z, z0, d, G, mu, rho) -> float:
+        """The convex model at ``z``: cost, proximal term and the linearised hinge."""
+        lin = d + G @ (z - z0)
+        return self.cost(z) + 0.5 * rho * float((z - z0) @ (z - z0)) + mu * self.hinge(lin)
+
+    def subproblem(self, z0, d, G, mu, rho, radius):
+        """Minimise the convex model around ``z0`` (its step limited to ``radius`` per
+        joint and to the joint limits); return the minimiser and the model's value there.
+
+        The model is |Dz - e|^2 + rho/2 |z - z0|^2 + mu sum_c max(0, h_c - G_c z): a
+        strictly convex quadratic plus hinges.  Its dual is a quadratic in the hinges'
+        multipliers, each bounded to [0, mu], which L-BFGS-B solves exactly for the few
+        dozen active pairs; then z = P^-1 (q + G^T lambda).
+        """
+        n = self.inner * self.dof
+        P = self.H + rho * np.eye(n)
+        q = 2 * self.D.T @ self.e + rho * z0
+        factor = cho_factor(P)
+        z = cho_solve(factor, q)
+        if len(d):
+            h = self.opts.margin - d + G @ z0
+            PiG = cho_solve(factor, G.T)  # (n, K)
+            Q = G @ PiG
+            c_lin = G @ z - h
+
+            def dual(lam):
+                Ql = Q @ lam
+                return 0.5 * float(lam @ Ql) + float(c_lin @ lam), Ql + c_lin
+
+            lam0 = np.where(c_lin < 0, mu, 0.0)
+            res = minimize(dual, lam0, jac=True, method="L-BFGS-B",
+                           bounds=[(0.0, mu)] * len(d),
+                           options={"maxiter": 500, "ftol": 1e-14, "gtol": 1e-10})
+            z = z + PiG @ res.x
+        lo = np.maximum(np.tile(self.lower, self.inner), z0 - radius)
+        hi = np.minimum(np.tile(self.upper, self.inner), z0 + radius)
+        z = np.clip(z, lo, hi)
+        return z, self.model(z, z0, d, G, mu, rho)
+
+
+def optimise(start, goal, lower, upper, contacts: DistanceModel,
+             opts: TrajOptOptions | None = None, deadline: float | None = None) -> TrajOptResult:
+    """Optimise a trajectory from ``start`` to ``goal`` (see the module docstring)."""
+    opts = opts or TrajOptOptions()
+    if opts.waypoints < 3:
+        raise ValueError(f"trajopt needs at least 3 waypoints, got {opts.waypoints}")
+    t0 = time.perf_counter()
+    p = _Problem(start, goal, lower, upper, opts, contacts)
+    z = straight_line(p.start, p.goal, opts.waypoints)[1:-1].reshape(-1)
+    mu, radius, iterations = opts.penalty, opts.trust_radius, 0
+    rho = PROXIMAL
+    d, G = p.linearise(z)
+    for _ in range(opts.penalty_rounds):
+        while iterations < opts.iterations and radius >= opts.min_trust:
+            if deadline is not None and time.perf_counter() > deadline:
+                break
+            merit = p.cost(z) + mu * p.hinge(d)
+            if p.hinge(d) == 0.0:
+                break
+            iterations += 1
+            z_new, model = p.subproblem(z, d, G, mu, rho, radius)
+            predicted = merit - model
+            if predicted < opts.tolerance:
+                break
+            d_new, G_new = p.linearise(z_new)
+            actual = merit - (p.cost(z_new) + mu * p.hinge(d_new))
+            if actual >= 0.25 * predicted:
+                z, d, G = z_new, d_new, G_new
+                radius, rho = min(radius * 1.5, 1.0), rho * 0.5
+            else:
+                radius, rho = radius * 0.5, rho * 4.0
+        if p.hinge(d) == 0.0:
+            break
+        mu *= opts.penalty_scale
+        radius = max(radius, opts.trust_radius)
+    trajectory = np.vstack([p.start, z.reshape(p.inner, p.dof), p.goal])
+    return TrajOptResult(trajectory=trajectory, converged=p.hinge(d) == 0.0,
+                         min_distance=float(d.min()) if d.size else np.inf,
+                         iterations=iterations, distance_queries=p.queries,
+                         time=time.perf_counter() - t0)
+
+
+#: How far beyond the margin pairs are linearised: obstacles slightly outside the margin
+#: enter the model before a step can jump past them.
+QUERY_BUFFER = 0.03
+
+
+def trajopt_plan(robot, start, goal, settings) -> PlanResult:
+    """π's motion-planning step with TrajOpt for a robot with ``obstacles()``,
+    ``distances(q, bodies, query)``, ``check(states)`` and joint limits ``lower``/``upper``.
+
+    Feasible only when the optimised trajectory passes the same dense re-check as RRT
+    paths (every edge at ``settings.resolution``); score = -(joint-space length).
+    """
+    from pipeline.planning.rrt import interpolate
+
+    opts = settings.trajopt_options()
+    bodies = robot.obstacles()
+    deadline = time.perf_counter() + settings.wall_cap_s
+    res = optimise(start, goal, robot.lower, robot.upper,
+                   lambda q: robot.distances(q, bodies, opts.margin + QUERY_BUFFER), opts,
+                   deadline=deadline)
+    checks = res.distance_queries
+    if time.perf_counter() > deadline:
+        return PlanResult(Status.TIMEOUT, checks=checks)
+    if not res.converged:
+        return PlanResult(Status.NOT_CONVERGED, checks=checks)
+    path = res.trajectory
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        ok, used = robot.check(interpolate(a, b, settings.resolution))
+        checks += used
+        if not ok:
+            return PlanResult(Status.PATH_IN_COLLISION, checks=checks)
+    return PlanResult(Status.OK, path=path, length=path_length(path), checks=checks)
