@@ -85,6 +85,9 @@ class PlanarDomain(Domain):
 
     def __init__(self, config: PlanarConfig, planner):
         super().__init__(config, planner)
+        if planner.name == "trajopt":
+            raise ValueError("planner=trajopt plans Panda arms (domain=grasp_arm); the planar "
+                             "domain uses planner=rrt_connect")
         c = config
         if not (c.size > 0 and 0 < c.robot_radius < c.size / 4):
             raise ValueError("domain: need size > 0 and 0 < robot_radius < size / 4")

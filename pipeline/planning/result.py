@@ -19,8 +19,9 @@ class Status(enum.IntEnum):
     TIMEOUT = 5  # the wall-clock safety net fired (the only machine-dependent outcome)
     ERROR = 6  # the simulator or planner raised; the message is in PlanResult.error
     SKIPPED = 7  # the no-op planner: nothing was planned
-    NOT_CONVERGED = 8  # trajopt: still closer than the margin when its iterations ran out
-    PATH_IN_COLLISION = 9  # trajopt: clear at the waypoints, but the dense re-check failed
+    NOT_CONVERGED = 8  # trajopt: in collision, still inside the margin when iterations ran out
+    PATH_IN_COLLISION = 9  # trajopt: clear of the margin where it looked (waypoints and
+    #                        segment midpoints), but in collision under the dense re-check
 
     @classmethod
     def names(cls) -> list[str]:

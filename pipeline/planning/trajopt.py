@@ -41,6 +41,9 @@ from pipeline.planning.result import PlanResult, Status, path_length
 #: keeps each step where the linearisation holds (halved after a good step, x4 after a bad).
 PROXIMAL = 1.0
 
+#: Distances this far inside the margin (metres) still count as clear.
+SLACK = 1e-6
+
 #: ``contacts(q) -> (d, g)``: signed distances (k,) of the pairs closer than the query
 #: distance at configuration q, and their gradients (k, dof).
 DistanceModel = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -134,6 +137,10 @@ class _Problem:
     def hinge(self, d) -> float:
         return float(np.maximum(0.0, self.opts.margin - d).sum())
 
+    def clear(self, d) -> bool:
+        """No pair closer than the margin (up to SLACK: the dual solve is not exact)."""
+        return bool((d >= self.opts.margin - SLACK).all())
+
     def model(self, z, z0, d, G, mu, rho) -> float:
         """The convex model at ``z``: cost, proximal term and the linearised hinge."""
         lin = d + G @ (z - z0)
@@ -191,7 +198,7 @@ def optimise(start, goal, lower, upper, contacts: DistanceModel,
             if deadline is not None and time.perf_counter() > deadline:
                 break
             merit = p.cost(z) + mu * p.hinge(d)
-            if p.hinge(d) == 0.0:
+            if p.clear(d):
                 break
             iterations += 1
             z_new, model = p.subproblem(z, d, G, mu, rho, radius)
@@ -205,12 +212,12 @@ def optimise(start, goal, lower, upper, contacts: DistanceModel,
                 radius, rho = min(radius * 1.5, 1.0), rho * 0.5
             else:
                 radius, rho = radius * 0.5, rho * 4.0
-        if p.hinge(d) == 0.0:
+        if p.clear(d):
             break
         mu *= opts.penalty_scale
         radius = max(radius, opts.trust_radius)
     trajectory = np.vstack([p.start, z.reshape(p.inner, p.dof), p.goal])
-    return TrajOptResult(trajectory=trajectory, converged=p.hinge(d) == 0.0,
+    return TrajOptResult(trajectory=trajectory, converged=p.clear(d),
                          min_distance=float(d.min()) if d.size else np.inf,
                          iterations=iterations, distance_queries=p.queries,
                          time=time.perf_counter() - t0)
@@ -239,12 +246,15 @@ def trajopt_plan(robot, start, goal, settings) -> PlanResult:
     checks = res.distance_queries
     if time.perf_counter() > deadline:
         return PlanResult(Status.TIMEOUT, checks=checks)
-    if not res.converged:
-        return PlanResult(Status.NOT_CONVERGED, checks=checks)
     path = res.trajectory
+    ok, used = robot.check(path[:1])
+    checks += used
     for a, b in zip(path[:-1], path[1:], strict=True):
+        if not ok:
+            break
         ok, used = robot.check(interpolate(a, b, settings.resolution))
         checks += used
-        if not ok:
-            return PlanResult(Status.PATH_IN_COLLISION, checks=checks)
+    if not ok:  # the margin is TrajOpt's target; the dense re-check decides feasibility
+        status = Status.PATH_IN_COLLISION if res.converged else Status.NOT_CONVERGED
+        return PlanResult(status, checks=checks)
     return PlanResult(Status.OK, path=path, length=path_length(path), checks=checks)

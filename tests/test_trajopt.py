@@ -1,0 +1,143 @@
+"""planner=trajopt: the optimiser on a 2-D model, and on the Panda through pybullet."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from pipeline.domains import load_domain
+from pipeline.planning import Status, interpolate
+from pipeline.planning.rrt import PlannerSettings, path_is_free
+from pipeline.planning.trajopt import TrajOptOptions, optimise, trajopt_plan
+from pipeline.sim import panda as P
+
+START, GOAL = np.array([0.0, 0.0]), np.array([1.0, 0.0])
+LIMITS = ([-2.0, -2.0], [2.0, 2.0])
+
+
+def disc(centre, radius, query=0.05):
+    centre = np.asarray(centre, float)
+
+    def contacts(q):
+        v = q - centre
+        n = np.linalg.norm(v)
+        if n - radius >= query:
+            return np.zeros(0), np.zeros((0, 2))
+        return np.array([n - radius]), (v / n)[None]
+
+    return contacts
+
+
+def dense_clearance(trajectory, centre, radius):
+    dense = np.vstack([interpolate(a, b, 1e-3) for a, b in zip(trajectory[:-1], trajectory[1:],
+                                                                strict=True)])
+    return float((np.linalg.norm(dense - centre, axis=1) - radius).min())
+
+
+def test_without_obstacles_the_result_is_the_evenly_spaced_straight_line():
+    res = optimise(START, GOAL, *LIMITS, disc([5.0, 5.0], 0.1))
+    assert res.converged and res.iterations == 0
+    np.testing.assert_allclose(res.trajectory[:, 0], np.linspace(0, 1, 20), atol=1e-12)
+    np.testing.assert_allclose(res.trajectory[:, 1], 0.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("centre", [[0.5, 0.01], [0.5, -0.05], [0.3, 0.03]])
+def test_a_disc_on_the_straight_line_is_avoided_with_the_margin(centre):
+    opts = TrajOptOptions(margin=0.02)
+    res = optimise(START, GOAL, *LIMITS, disc(centre, 0.2), opts)
+    assert res.converged
+    assert dense_clearance(res.trajectory, np.asarray(centre), 0.2) >= 0.02 - 1e-6
+    np.testing.assert_array_equal(res.trajectory[0], START)
+    np.testing.assert_array_equal(res.trajectory[-1], GOAL)
+    steps = np.linalg.norm(np.diff(res.trajectory, axis=0), axis=1)
+    assert 1.0 < steps.sum() < 1.6  # around the disc, not a wild detour
+
+
+def test_joint_limits_hold_even_when_the_way_round_is_outside_them():
+    res = optimise(START, GOAL, [-2.0, -0.1], [2.0, 2.0], disc([0.5, -0.05], 0.2))
+    assert (res.trajectory[:, 1] >= -0.1 - 1e-12).all()
+    assert res.converged and dense_clearance(res.trajectory, np.array([0.5, -0.05]), 0.2) > 0
+
+
+def test_a_goal_inside_an_obstacle_leaves_the_trajectory_in_collision():
+    res = optimise(START, GOAL, *LIMITS, disc([1.0, 0.0], 0.3))
+    assert dense_clearance(res.trajectory, np.array([1.0, 0.0]), 0.3) < 0
+
+
+def test_the_optimiser_is_deterministic():
+    runs = [optimise(START, GOAL, *LIMITS, disc([0.5, 0.01], 0.2)) for _ in range(2)]
+    assert runs[0].trajectory.tobytes() == runs[1].trajectory.tobytes()
+
+
+# -- on the Panda ----------------------------------------------------------------------------
+TARGET = {"size": [0.04, 0.04, 0.12], "position": [0.42, -0.3, 0.061], "yaw": 0.0}
+SWING = P.HOME + np.array([1.2, 0, 0, 0, 0, 0, 0])  # the first joint turns by 1.2 rad
+
+
+@pytest.fixture(scope="module")
+def domain():
+    return load_domain("grasp_arm", planner="trajopt")
+
+
+@pytest.fixture(scope="module")
+def blocked_swing(domain):
+    """A scene with a box where the hand passes half-way along the straight swing."""
+    probe = domain.build_scene({"domain": "grasp_arm", "seed": 0, "target": TARGET,
+                                "obstacles": []})
+    mid, _ = probe.arms[0].tcp_pose(P.HOME + 0.5 * (SWING - P.HOME))
+    probe.close()
+    box = {"size": [0.08, 0.08, 0.08], "position": [float(v) for v in mid], "yaw": 0.0}
+    scene = domain.build_scene({"domain": "grasp_arm", "seed": 0, "target": TARGET,
+                                "obstacles": [box]})
+    yield scene.arms[0]
+    scene.close()
+
+
+def test_the_panda_goes_round_a_box_on_its_straight_path(blocked_swing):
+    arm = blocked_swing
+    assert not arm.collides_at(P.HOME) and not arm.collides_at(SWING)
+    assert not path_is_free(np.array([P.HOME, SWING]), arm.check, 0.01)
+    res = trajopt_plan(arm, P.HOME, SWING, PlannerSettings(name="trajopt"))
+    assert res.status is Status.OK and res.path.shape == (20, 7)
+    assert path_is_free(res.path, arm.check, 0.01)
+    assert res.length > np.linalg.norm(SWING - P.HOME)
+    again = trajopt_plan(arm, P.HOME, SWING, PlannerSettings(name="trajopt"))
+    assert again.path.tobytes() == res.path.tobytes()
+
+
+def test_a_blocked_goal_is_infeasible(blocked_swing):
+    arm = blocked_swing
+    inside = P.HOME + 0.5 * (SWING - P.HOME)  # the hand inside the box
+    res = trajopt_plan(arm, P.HOME, inside, PlannerSettings(name="trajopt"))
+    assert not res.feasible and res.status in (Status.NOT_CONVERGED, Status.PATH_IN_COLLISION)
+
+
+def test_enclosed_object_is_infeasible_for_every_grasp(domain):
+    from tests.test_grasp_arm import ENCLOSED
+
+    statuses = {domain.plan(ENCLOSED, j, seed=j).status for j in range(0, 162, 2)}
+    assert Status.OK not in statuses
+
+
+def test_domain_results_are_bitwise_identical_in_another_process(domain):
+    inst = domain.sample_instance(3)
+    calls = [(j, domain.plan(inst, j, seed=j)) for j in range(0, 162, 9)]
+    assert any(r.feasible for _, r in calls)
+    code = (
+        "import json, sys; from pipeline.domains import load_domain; "
+        "d = load_domain('grasp_arm', planner='trajopt'); inst = json.loads(sys.argv[1]); "
+        "print(json.dumps([[int(d.plan(inst, j, seed=j).status), "
+        "d.plan(inst, j, seed=j).path.tobytes().hex()] for j in json.loads(sys.argv[2])]))")
+    out = subprocess.run([sys.executable, "-c", code, json.dumps(inst),
+                          json.dumps([j for j, _ in calls][::-1])],
+                         capture_output=True, text=True, check=True).stdout
+    other = json.loads(out.strip().splitlines()[-1])[::-1]
+    for (_, r), (status, path) in zip(calls, other, strict=True):
+        assert int(r.status) == status and r.path.tobytes().hex() == path
+
+
+def test_planar_refuses_trajopt():
+    with pytest.raises(ValueError, match="trajopt"):
+        load_domain("planar", planner="trajopt")
