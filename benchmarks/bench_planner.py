@@ -5,7 +5,11 @@ feasible call (IK + RRT-Connect + shortcutting), median ms per call rejected at 
 status mix, and the mean ms per entry over all entries.  The authors' 2016 pipeline
 averaged 1.4 s per entry of this matrix.
 
-Run: python benchmarks/bench_planner.py [--instances 20]
+Then the same entries with planner=trajopt: median ms per feasible call and success rate
+of each planner, and the share of entries feasible for one planner but not the other
+(IK is shared, so both see the same goals).
+
+Run: python benchmarks/bench_planner.py [--instances 20] [--no-trajopt]
 """
 
 from __future__ import annotations
@@ -38,20 +42,13 @@ def checks_per_second(domain, instances, per_instance: int = 2000) -> list[float
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--instances", type=int, default=20)
+    ap.add_argument("--no-trajopt", action="store_true", help="skip the TrajOpt comparison")
     args = ap.parse_args()
     domain = load_domain("grasp_arm")
     instances = [domain.sample_instance(i) for i in range(args.instances)]
     rates = checks_per_second(domain, instances[:5])
 
-    times: dict[Status, list[float]] = {}
-    checks = 0
-    t0 = time.perf_counter()
-    for inst in instances:
-        for j in range(162):
-            res = domain.plan(inst, j, seed=j)
-            times.setdefault(res.status, []).append(res.time)
-            checks += res.checks
-    total = time.perf_counter() - t0
+    times, checks, total, rrt_ok = run_entries(domain, instances)
     entries = args.instances * 162
     mix = Counter({s.name.lower(): len(v) for s, v in times.items()})
 
@@ -69,6 +66,42 @@ def main() -> None:
     print(f"  mean per entry over all entries: {total / entries * 1e3:.2f} ms (target <= 25 ms; "
           f"the authors' 2016 pipeline: 1400 ms)")
     print(f"  collision checks per entry: mean {checks / entries:,.0f}")
+    if not args.no_trajopt:
+        compare_trajopt(instances, times, rrt_ok)
+
+
+def run_entries(domain, instances):
+    """Plan every (instance, constraint): per-status times, checks, wall time, feasibility."""
+    times: dict[Status, list[float]] = {}
+    feasible = np.zeros((len(instances), 162), dtype=bool)
+    checks = 0
+    t0 = time.perf_counter()
+    for i, inst in enumerate(instances):
+        for j in range(162):
+            res = domain.plan(inst, j, seed=j)
+            times.setdefault(res.status, []).append(res.time)
+            feasible[i, j] = res.feasible
+            checks += res.checks
+    return times, checks, time.perf_counter() - t0, feasible
+
+
+def compare_trajopt(instances, rrt_times, rrt_ok) -> None:
+    domain = load_domain("grasp_arm", planner="trajopt")
+    times, _, total, ok = run_entries(domain, instances)
+    entries = ok.size
+    print(f"\ntrajopt on the same {entries} entries (T = 20 waypoints, 2 cm margin)")
+    for name, t, feasible in (("rrt_connect", rrt_times, rrt_ok), ("trajopt", times, ok)):
+        v = t.get(Status.OK, [])
+        med = f"{np.median(v) * 1e3:.2f} ms" if v else "n/a"
+        print(f"  {name:<12} median per feasible call {med}; feasible {feasible.sum()} of "
+              f"{entries} ({feasible.mean():.1%})")
+    print(f"  trajopt mean per entry: {total / entries * 1e3:.2f} ms")
+    print(f"  feasible for rrt_connect only: {(rrt_ok & ~ok).sum()} "
+          f"({(rrt_ok & ~ok).mean():.2%}); for trajopt only: {(ok & ~rrt_ok).sum()} "
+          f"({(ok & ~rrt_ok).mean():.2%})")
+    mix = Counter({s.name.lower(): len(v) for s, v in times.items()})
+    print("  trajopt status mix: " + ", ".join(f"{k} {v} ({v / entries:.1%})"
+                                               for k, v in mix.most_common()))
 
 
 if __name__ == "__main__":

@@ -70,14 +70,25 @@ def training_matrix(store: ScoreStore, use_incomplete: bool, failure_rule: str):
 
 def solve_instance(spec: dict, instance: dict, inst_seed: int, run_seed: int, train, theta,
                    d: float, selectors: list[str], c: float, max_evaluations: int,
-                   max_seconds: float | None) -> dict:
+                   max_seconds: float | None, order_flip: bool = False) -> dict:
     """One fresh instance: every selector live, then RAWPLANNER (runs in a worker)."""
     from pipeline.worker import RAW_ENTRY, domain_for, entry_seed
 
     domain = domain_for(spec)
     inst = domain.check_instance(instance)
+    # untimed warm-up: the worker's simulator loads this instance (and on its first task
+    # builds its scene) here, not inside whichever method happens to run first
+    domain.plan(inst, theta[0], seed=entry_seed(run_seed, inst_seed, 0))
     out = {"seed": inst_seed, "selectors": {}}
-    for k, name in enumerate(selectors):
+    methods = [*selectors, RAWPLANNER]
+    if order_flip:  # alternate which method runs first: caches favour neither
+        methods.reverse()
+    for name in methods:
+        if name == RAWPLANNER:
+            out["selectors"][name] = _raw(domain, inst, entry_seed(run_seed, inst_seed,
+                                                                   RAW_ENTRY), d)
+            continue
+        k = selectors.index(name)
         params = {"c": c} if name == "box" else {}
         sel = box_core.make_selector(name, train, features=theta, seed=[run_seed, inst_seed, k],
                                      **params)
@@ -88,8 +99,8 @@ def solve_instance(spec: dict, instance: dict, inst_seed: int, run_seed: int, tr
             plan = domain.plan(inst, theta[j], seed=entry_seed(run_seed, inst_seed, j))
             sel.update(j, plan.score if plan.feasible else d)
             elapsed = time.perf_counter() - start
-            tries.append({"constraint": j, "status": plan.status.name, "time": plan.time,
-                          "length": plan.length if plan.feasible else None})
+            tries.append({"constraint": j, "status": plan.status.name.lower(),
+                          "time": plan.time, "length": plan.length if plan.feasible else None})
             if plan.feasible:
                 if math.isnan(first):
                     first = elapsed
@@ -104,14 +115,18 @@ def solve_instance(spec: dict, instance: dict, inst_seed: int, run_seed: int, tr
             "best_score": best[1].score if best else d,
             "best_constraint": best[0] if best else None,
             "best_path": best[1].path if best else None}
-    raw = domain.raw_plan(inst, seed=entry_seed(run_seed, inst_seed, RAW_ENTRY))
-    out["selectors"][RAWPLANNER] = {
-        "first_feasible_time": raw.time if raw.plan.feasible else math.nan,
-        "tries": raw.tries, "first_feasible_try": raw.tries if raw.plan.feasible else None,
-        "best_score": raw.plan.score if raw.plan.feasible else d,
-        "best_constraint": raw.constraint.tolist() if raw.plan.feasible else None,
-        "best_path": raw.plan.path if raw.plan.feasible else None}
+    out["selectors"] = {name: out["selectors"][name] for name in [*selectors, RAWPLANNER]}
     return out
+
+
+def _raw(domain, inst, seed: int, d: float) -> dict:
+    raw = domain.raw_plan(inst, seed=seed)
+    ok = raw.plan.feasible
+    return {"first_feasible_time": raw.time if ok else math.nan, "tries": raw.tries,
+            "first_feasible_try": raw.tries if ok else None,
+            "best_score": raw.plan.score if ok else d,
+            "best_constraint": raw.constraint.tolist() if ok else None,
+            "best_path": raw.plan.path if ok else None}
 
 
 def live_table(records: list[dict], names: list[str], level: float = 0.95):
@@ -188,7 +203,8 @@ def solve(run, out_dir: Path) -> dict:
     max_eval = budget or theta.shape[0]
     tasks = [Task(key=f"solve-{store.attrs['config_hash']}-{k}-{s}", fn=solve_instance,
                   args=(spec, instances[k], s, seed, train, theta, d, names,
-                        run.plain["evaluate"]["c"], max_eval, settings["max_seconds"]),
+                        run.plain["evaluate"]["c"], max_eval, settings["max_seconds"],
+                        k % 2 == 1),
                   entries=1, block=k) for k, s in enumerate(seeds)]
     run_tasks(run.client, tasks, lambda task, rec: records.__setitem__(task.block, rec),
               retries=cfg.cluster.retries, label="solve", console=run.console,
