@@ -71,7 +71,7 @@ def _render_first_choices(res: StoreResults, count: int, out_dir: Path, tag: str
         path = domain.render(spec, plan, out_dir / f"{tag}-instance{i}-constraint{j}.png",
                              constraint=res.theta[j])
         verdict = (f"feasible, path length {plan.length:.3f}" if plan.feasible
-                   else f"infeasible ({plan.status.name})")
+                   else f"infeasible: {plan.status.name.lower()}")
         agrees = "as in D" if plan.feasible == bool(res.feasible[i, j]) else "DIFFERS FROM D"
         out.append((path, f"{res.label}, instance {i}: BOX's first choice is constraint {j} "
                           f"({verdict}, {agrees}); BOX found a feasible one at try "

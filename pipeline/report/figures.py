@@ -13,6 +13,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.ticker  # noqa: E402
 import numpy as np  # noqa: E402
 
 from box_core import curve_summary  # noqa: E402
@@ -135,6 +136,9 @@ def learning_curves(results, curves, out_dir: Path, formats) -> dict[str, Path]:
             ax.plot(x, mean, marker="o", color=colour, label=label(name))
             ax.fill_between(x, lo, hi, color=colour, alpha=0.15)
         ax.set_xscale("log")
+        sizes = sorted({p.n_train for p in points})
+        ax.set_xticks(sizes, [str(v) for v in sizes])
+        ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
         ax.set_xlabel("training instances")
         ax.set_ylabel("mean time to first feasible plan (s)")
         ax.set_title(res.label, fontsize=10)
