@@ -20,7 +20,9 @@ import numpy as np
 import box_core
 from box_core.stats import mean_ci, paired_ratio
 from pipeline.evaluation import RAWPLANNER, load_matrix
+from pipeline.report import fmt
 from pipeline.report.data import domain_spec
+from pipeline.report.figures import label
 from pipeline.store import ScoreStore, StoreError
 
 #: Fresh instance i of run ``seed`` is drawn from SeedSequence([seed, SOLVE_STREAM, i]);
@@ -58,7 +60,7 @@ def training_matrix(store: ScoreStore, use_incomplete: bool, failure_rule: str):
         feasible = store.array("scores/feasible")[...][complete]
         length = store.array("scores/length")[...][complete]
         theta = store.array("constraints/theta")[...]
-        scores = np.where(feasible, -np.nan_to_num(length, nan=0.0), 0.0)
+        scores = np.where(feasible, -np.nan_tofmt(length, nan=0.0), 0.0)
     else:
         scores, feasible, _, theta = load_matrix(store)
     if not feasible.any():
@@ -145,16 +147,12 @@ def live_table(records: list[dict], names: list[str], level: float = 0.95):
         tries = [x for x in tries if x is not None]
         best = np.mean([r["selectors"][n]["best_score"] for r in records])
         ratio = paired_ratio(raw, t, level) if raw is not None else (math.nan,) * 3
-        rows.append([n.upper() if n != "pembo" else "PEM-BO", f"{int(found.sum())}/{t.size}",
-                     _num(mean), f"[{_num(lo)}, {_num(hi)}]",
-                     _num(float(np.median(t[found])) if found.any() else math.nan),
-                     _num(float(np.mean(tries)) if tries else math.nan, 3), _num(best),
-                     _num(ratio[0], 3), f"[{_num(ratio[1], 3)}, {_num(ratio[2], 3)}]"])
+        rows.append([label(n), f"{int(found.sum())}/{t.size}",
+                     fmt(mean), f"[{fmt(lo)}, {fmt(hi)}]",
+                     fmt(float(np.median(t[found])) if found.any() else math.nan),
+                     fmt(float(np.mean(tries)) if tries else math.nan, 3), fmt(best),
+                     fmt(ratio[0], 3), f"[{fmt(ratio[1], 3)}, {fmt(ratio[2], 3)}]"])
     return header, rows
-
-
-def _num(x, digits: int = 4) -> str:
-    return "-" if x is None or math.isnan(x) else f"{x:.{digits}g}"
 
 
 def _jsonable(record: dict) -> dict:

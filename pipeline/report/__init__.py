@@ -15,10 +15,11 @@ from pipeline.report import figures
 from pipeline.report.data import StoreResults, load
 from pipeline.report.document import Document
 
-__all__ = ["StoreResults", "load", "make_report", "summary_rows"]
+__all__ = ["StoreResults", "fmt", "load", "make_report", "summary_rows"]
 
 
-def _num(x, digits: int = 4) -> str:
+def fmt(x, digits: int = 4) -> str:
+    """A number for a table: 4 significant digits, "-" for missing."""
     return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}g}"
 
 
@@ -31,9 +32,9 @@ def summary_rows(res: StoreResults) -> tuple[list[str], list[list[str]]]:
     for line in res.summary["selectors"]:
         rows.append([
             figures.label(line["name"]), f"{line['found']}/{line['rows']}",
-            _num(line["mean_time"]), f"[{_num(line['ci_low'])}, {_num(line['ci_high'])}]",
-            _num(line["median_time"]), _num(line["mean_tries"], 3), _num(line["speedup"], 3),
-            f"[{_num(line['speedup_low'], 3)}, {_num(line['speedup_high'], 3)}]"])
+            fmt(line["mean_time"]), f"[{fmt(line['ci_low'])}, {fmt(line['ci_high'])}]",
+            fmt(line["median_time"]), fmt(line["mean_tries"], 3), fmt(line["speedup"], 3),
+            f"[{fmt(line['speedup_low'], 3)}, {fmt(line['speedup_high'], 3)}]"])
     return header, rows
 
 
@@ -128,8 +129,8 @@ def make_report(paths, out_dir: Path, settings: dict, say=print) -> dict[str, Pa
         doc.heading(res.label, 3)
         doc.table(["selector", "share of rows", "training instances", "mean time (s)",
                    "95% CI", "held-out runs"],
-                  [[figures.label(p.selector), f"{p.fraction:g}", str(p.n_train), _num(p.mean),
-                    f"[{_num(p.low)}, {_num(p.high)}]", str(p.rows)] for p in points])
+                  [[figures.label(p.selector), f"{p.fraction:g}", str(p.n_train), fmt(p.mean),
+                    f"[{fmt(p.low)}, {fmt(p.high)}]", str(p.rows)] for p in points])
     written["learning"] = figures.learning_curves(results, curves, out_dir, formats)["png"]
     doc.image(written["learning"], "Time to first feasible plan of BOX and STATIC versus the "
               "number of training instances; bands: 95 % interval.")
@@ -146,15 +147,15 @@ def make_report(paths, out_dir: Path, settings: dict, say=print) -> dict[str, Pa
         tunings.append(tuning)
         s = tuning.summary()
         doc.heading(res.label, 3)
-        rows = [[f"{c:g}", _num(v[0]), f"[{_num(v[1])}, {_num(v[2])}]"]
+        rows = [[f"{c:g}", fmt(v[0]), f"[{fmt(v[1])}, {fmt(v[2])}]"]
                 for c, v in tuning.sensitivity.items()]
         doc.table(["C", "mean time (s), leave-one-out", "95% CI"], rows)
         doc.table(["BOX on the same folds", "mean time (s)", "95% CI", "C per fold"], [
-            ["C tuned by nested CV", _num(s["tuned"][0]),
-             f"[{_num(s['tuned'][1])}, {_num(s['tuned'][2])}]",
+            ["C tuned by nested CV", fmt(s["tuned"][0]),
+             f"[{fmt(s['tuned'][1])}, {fmt(s['tuned'][2])}]",
              ", ".join(f"{c:g}" for c in tuning.chosen)],
-            [f"C = {tuning.fixed_c:g}", _num(s["fixed"][0]),
-             f"[{_num(s['fixed'][1])}, {_num(s['fixed'][2])}]", "fixed"]])
+            [f"C = {tuning.fixed_c:g}", fmt(s["fixed"][0]),
+             f"[{fmt(s['fixed'][1])}, {fmt(s['fixed'][2])}]", "fixed"]])
     written["c"] = figures.c_sensitivity(results, tunings, out_dir, formats)["png"]
     doc.image(written["c"], "BOX's mean time to first feasible plan versus C (leave-one-out) "
               "and the nested-CV tuned result.")
