@@ -60,7 +60,7 @@ def training_matrix(store: ScoreStore, use_incomplete: bool, failure_rule: str):
         feasible = store.array("scores/feasible")[...][complete]
         length = store.array("scores/length")[...][complete]
         theta = store.array("constraints/theta")[...]
-        scores = np.where(feasible, -np.nan_tofmt(length, nan=0.0), 0.0)
+        scores = np.where(feasible, -np.nan_to_num(length, nan=0.0), 0.0)
     else:
         scores, feasible, _, theta = load_matrix(store)
     if not feasible.any():
