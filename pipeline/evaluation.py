@@ -14,6 +14,12 @@ from pipeline.tables import summary_table
 RAWPLANNER = "rawplanner"
 
 
+def path_scores(feasible, length) -> np.ndarray:
+    """Scores as box_core takes them: -(path length) where feasible, 0 elsewhere (the
+    failure value replaces those entries at analysis time)."""
+    return np.where(feasible, -np.nan_to_num(length, nan=0.0), 0.0)
+
+
 def load_matrix(store):
     """(scores, feasible, times, features) of a finished store, as box_core wants them."""
     feasible = store.array("scores/feasible")[...]
@@ -22,7 +28,7 @@ def load_matrix(store):
     if np.isnan(times).any():
         raise StoreError(f"{store.path}: scores/time has missing entries; is stage scores "
                          "complete?")
-    scores = np.where(feasible, -np.nan_to_num(length, nan=0.0), 0.0)
+    scores = path_scores(feasible, length)
     if np.isnan(length[feasible]).any():
         raise StoreError(f"{store.path}: a feasible entry has no path length (damaged store?)")
     return scores, feasible, times, store.array("constraints/theta")[...]

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.evaluation import path_scores
 from pipeline.store import ScoreStore, StoreError
 
 FORMATS = ("npz", "csv")
@@ -20,8 +21,7 @@ def _arrays(store: ScoreStore) -> dict[str, np.ndarray]:
     feasible = store.array("scores/feasible")[...] & done
     length = store.array("scores/length")[...]
     return {
-        # what ``box evaluate`` reads: -(path length) where feasible, 0 elsewhere
-        "scores": np.where(feasible, -np.nan_to_num(length, nan=0.0), 0.0),
+        "scores": path_scores(feasible, length),  # what ``box evaluate`` reads
         "feasible": feasible,
         "times": store.array("scores/time")[...],
         "features": store.array("constraints/theta")[...],

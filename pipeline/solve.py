@@ -19,7 +19,7 @@ import numpy as np
 
 import box_core
 from box_core.stats import mean_ci, paired_ratio
-from pipeline.evaluation import RAWPLANNER, load_matrix
+from pipeline.evaluation import RAWPLANNER, load_matrix, path_scores
 from pipeline.report import fmt
 from pipeline.report.data import domain_spec
 from pipeline.report.figures import label
@@ -60,7 +60,7 @@ def training_matrix(store: ScoreStore, use_incomplete: bool, failure_rule: str):
         feasible = store.array("scores/feasible")[...][complete]
         length = store.array("scores/length")[...][complete]
         theta = store.array("constraints/theta")[...]
-        scores = np.where(feasible, -np.nan_to_num(length, nan=0.0), 0.0)
+        scores = path_scores(feasible, length)
     else:
         scores, feasible, _, theta = load_matrix(store)
     if not feasible.any():
