@@ -17,6 +17,7 @@ from pipeline.domains.base import ConstraintSet, Domain, InstanceError, RawResul
 DOMAINS = {
     "planar": "pipeline.domains.planar:PlanarDomain",
     "grasp_arm": "pipeline.domains.grasp_arm:GraspArmDomain",
+    "grasp_base": "pipeline.domains.grasp_base:GraspBaseDomain",
 }
 
 

@@ -49,13 +49,16 @@ class Domain(abc.ABC):
     """A family of planning problems ω and their solution constraints θ.
 
     Subclasses set ``name``, ``config_class`` (a dataclass, the schema of
-    ``conf/domain/<name>.yaml``) and ``fixed_constraints`` (True when Θ is a fixed set,
-    False when it is extracted from RAWPLANNER's solutions).
+    ``conf/domain/<name>.yaml``), ``fixed_constraints`` (True when Θ is a fixed set,
+    False when it is extracted from RAWPLANNER's solutions) and ``steps``.
     """
 
     name: ClassVar[str]
     config_class: ClassVar[type]
     fixed_constraints: ClassVar[bool]
+    #: the steps of one planning call, in order; a failed PlanResult names the one that
+    #: failed in ``step`` (stored as its index in the ``step`` arrays of the store)
+    steps: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, config, planner: PlannerSettings):
         self.config = config

@@ -32,7 +32,7 @@ from pipeline.domains.base import (
 from pipeline.planning import PlanResult, RRTConnect, Status
 from pipeline.planning.trajopt import trajopt_plan
 from pipeline.sim import panda as P
-from pipeline.sim.world import add_box, connect
+from pipeline.sim.world import add_box, camera_image, connect, quaternion, rot_z, save_png
 
 #: name -> (x range, y range, surface height, free height above it)
 SURFACES = {
@@ -98,13 +98,13 @@ def hand_orientation(approach: np.ndarray, rotation: float) -> np.ndarray:
     return np.column_stack([x, np.cross(z, x), z])
 
 
-def _quaternion(R: np.ndarray) -> np.ndarray:
-    """(x, y, z, w) of a rotation matrix."""
-    w = np.sqrt(max(0.0, 1 + R[0, 0] + R[1, 1] + R[2, 2])) / 2
-    x = np.copysign(np.sqrt(max(0.0, 1 + R[0, 0] - R[1, 1] - R[2, 2])) / 2, R[2, 1] - R[1, 2])
-    y = np.copysign(np.sqrt(max(0.0, 1 - R[0, 0] + R[1, 1] - R[2, 2])) / 2, R[0, 2] - R[2, 0])
-    z = np.copysign(np.sqrt(max(0.0, 1 - R[0, 0] - R[1, 1] + R[2, 2])) / 2, R[1, 0] - R[0, 1])
-    return np.array([x, y, z, w])
+def pregrasp_pose(target: Box, g: Grasp, offset: float) -> tuple[np.ndarray, np.ndarray]:
+    """World position and quaternion of the TCP at g's pre-grasp of the ``target`` box:
+    ``offset`` metres back along the approach from the grasp."""
+    R_obj = rot_z(target.yaw)
+    approach = R_obj @ g.approach
+    pre = np.asarray(target.position) + approach * (g.depth - offset)
+    return pre, quaternion(R_obj @ hand_orientation(g.approach, g.rotation))
 
 
 @dataclass(frozen=True)
@@ -158,7 +158,7 @@ class GraspArmScene:
         pb.disconnect(physicsClientId=self.client_id)
 
 
-def _box(value, key: str) -> Box:
+def parse_box(value, key: str) -> Box:
     if not isinstance(value, dict):
         raise InstanceError(f"instance spec: {key} must be an object with size, position, yaw")
     size = finite_rows([require(value, "size", list)], f"{key}.size", 3)[0]
@@ -173,6 +173,7 @@ class GraspArmDomain(Domain):
     name = "grasp_arm"
     config_class = GraspArmConfig
     fixed_constraints = True
+    steps = ("ik", "arm_path")
 
     def __init__(self, config: GraspArmConfig, planner):
         super().__init__(config, planner)
@@ -228,8 +229,8 @@ class GraspArmDomain(Domain):
         if isinstance(instance, GraspArmInstance):
             return instance
         seed = require(instance, "seed", int)
-        target = _box(require(instance, "target", dict), "target")
-        obstacles = tuple(_box(o, f"obstacles[{k}]")
+        target = parse_box(require(instance, "target", dict), "target")
+        obstacles = tuple(parse_box(o, f"obstacles[{k}]")
                           for k, o in enumerate(require(instance, "obstacles", list)))
         return GraspArmInstance(seed, target, obstacles)
 
@@ -254,13 +255,7 @@ class GraspArmDomain(Domain):
 
     def pregrasp_pose(self, inst: GraspArmInstance, g: Grasp) -> tuple[np.ndarray, np.ndarray]:
         """World position and quaternion of the TCP at the pre-grasp."""
-        t = inst.target
-        c, s = np.cos(t.yaw), np.sin(t.yaw)
-        R_obj = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        approach = R_obj @ g.approach
-        tcp = np.asarray(t.position) + approach * g.depth
-        pre = tcp - approach * self.config.pregrasp_offset
-        return pre, _quaternion(R_obj @ hand_orientation(g.approach, g.rotation))
+        return pregrasp_pose(inst.target, g, self.config.pregrasp_offset)
 
     # -- planning --------------------------------------------------------------------------
     def scene(self, inst: GraspArmInstance) -> GraspArmScene:
@@ -281,17 +276,19 @@ class GraspArmDomain(Domain):
     def _plan_arm(self, inst: GraspArmInstance, g: Grasp, arm: P.Panda, seed: int) -> PlanResult:
         pos, orn = self.pregrasp_pose(inst, g)
         if np.linalg.norm(pos - arm.shoulder) > P.REACH:  # out of reach: no IK can exist
-            return PlanResult(Status.NO_IK)
+            return PlanResult(Status.NO_IK, step="ik")
         rng = np.random.default_rng([seed, 7])
         goal, ik_checks, reached = arm.ik(pos, orn, rng, self.config.ik_restarts)
         if goal is None:  # no solution at all, or only colliding ones
             status = Status.GOAL_IN_COLLISION if reached else Status.NO_IK
-            return PlanResult(status, checks=ik_checks)
+            return PlanResult(status, checks=ik_checks, step="ik")
         if self.planner.name == "trajopt":
             result = trajopt_plan(arm, P.HOME, goal, self.planner)
         else:
             result = self.rrt.plan(P.HOME, goal, self.rrt.budget(arm.check), seed=seed)
         result.checks += ik_checks
+        if not result.feasible:
+            result.step = "arm_path"
         return result
 
     def raw_plan(self, instance, seed: int = 0) -> RawResult:
@@ -322,24 +319,11 @@ class GraspArmDomain(Domain):
         try:
             if plan is not None and plan.feasible and constraint is not None:
                 scene.set_configuration(plan.path[-1], arm=self.constraint(constraint).arm)
-            c = scene.client_id
-            view = pb.computeViewMatrix([-0.2, 1.3, 1.1], [0.5, 0.0, 0.1], [0, 0, 1],
-                                        physicsClientId=c)
-            proj = pb.computeProjectionMatrixFOV(50, width / height, 0.05, 5.0,
-                                                 physicsClientId=c)
-            img = pb.getCameraImage(width, height, view, proj, renderer=pb.ER_TINY_RENDERER,
-                                    physicsClientId=c)
-            rgb = np.reshape(np.asarray(img[2], dtype=np.uint8), (height, width, 4))[..., :3]
+            rgb = camera_image(scene.client_id, [-0.2, 1.3, 1.1], [0.5, 0.0, 0.1], width,
+                               height)
         finally:
             scene.close()
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        out = Path(path)
-        plt.imsave(out, rgb)
-        return out
+        return save_png(rgb, path)
 
 
 @functools.lru_cache(maxsize=1)
@@ -351,4 +335,4 @@ def _feature_index(row: tuple) -> int | None:
     return _feature_table().get(row)
 
 
-__all__ = ["GraspArmConfig", "GraspArmDomain", "grasp_set", "hand_orientation"]
+__all__ = ["GraspArmConfig", "GraspArmDomain", "grasp_set", "hand_orientation", "pregrasp_pose"]

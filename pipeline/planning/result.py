@@ -38,6 +38,7 @@ class PlanResult:
     checks: int = 0
     time: float = 0.0
     error: str = ""
+    step: str = ""  # the domain's step that failed (Domain.steps); "" when none or feasible
 
     @property
     def feasible(self) -> bool:

@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pybullet as pb
 
+from pipeline.sim.world import yaw_quaternion
+
 ARM_JOINTS = tuple(range(7))
 FINGER_JOINTS = (9, 10)
 TCP_LINK = 11  # panda_grasptarget: the point between the fingertips
@@ -30,6 +32,7 @@ class Panda:
     def __init__(self, client: int, base_position, *, finger_opening: float = 0.04):
         self.client = client
         self.base_position = np.asarray(base_position, float)
+        self.base_yaw = 0.0
         self.body = pb.loadURDF("franka_panda/panda.urdf", basePosition=list(self.base_position),
                                 useFixedBase=True, flags=pb.URDF_USE_SELF_COLLISION,
                                 physicsClientId=client)
@@ -43,6 +46,13 @@ class Panda:
     @property
     def shoulder(self) -> np.ndarray:
         return self.base_position + np.array([0.0, 0.0, SHOULDER_HEIGHT])
+
+    def set_base(self, position, yaw: float = 0.0) -> None:
+        """Move the arm's base (a mobile robot carries it around)."""
+        self.base_position = np.asarray(position, float)
+        self.base_yaw = float(yaw)
+        pb.resetBasePositionAndOrientation(self.body, [float(v) for v in position],
+                                          yaw_quaternion(yaw), physicsClientId=self.client)
 
     def _filter_self_pairs(self) -> None:
         c = self.client
@@ -116,10 +126,13 @@ class Panda:
         return np.array(state[4]), np.array(state[5])
 
     def ik(self, position, orientation, rng: np.random.Generator, restarts: int,
-           pos_tol: float = 0.005, ang_tol: float = 0.05) -> tuple[np.ndarray | None, int, bool]:
+           pos_tol: float = 0.005, ang_tol: float = 0.05,
+           collides=None) -> tuple[np.ndarray | None, int, bool]:
         """(a collision-free joint solution reaching the TCP pose or None, the collision
         checks used, whether any solution reached the pose).  Restart k starts from home
-        (k = 0) or from a random configuration drawn from ``rng``."""
+        (k = 0) or from a random configuration drawn from ``rng``.  ``collides(q)`` is the
+        check (default: this arm's own)."""
+        collides = collides or self.collides_at
         checks = 0
         ranges = list(UPPER - LOWER)
         for k in range(restarts):
@@ -137,7 +150,7 @@ class Panda:
             if np.linalg.norm(pos - position) > pos_tol or _angle(orn, orientation) > ang_tol:
                 continue
             checks += 1
-            if not self.collides_at(q):
+            if not collides(q):
                 return q, checks, True
         return None, checks, checks > 0
 

@@ -1,0 +1,145 @@
+"""A Panda on a mobile base (x, y, ψ) whose platform collides, optionally holding an object.
+
+The platform is a box (``PLATFORM``) and the arm is mounted on its top, ``MOUNT`` metres
+ahead of its centre.  Moving the base resets three bodies (platform, arm and, when one is
+held, the object): DESIGN.md §4 measured about 30 µs per reset.
+
+A held object follows the hand rigidly.  During base motion the arm does not move, so the
+object's pose in the base frame is fixed and no forward kinematics is needed per check;
+during arm motion it is placed from the TCP pose at every check.  Contacts between the
+held object and the hand or fingers are the grasp itself, not collisions.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet as pb
+
+from pipeline.sim import panda as P
+from pipeline.sim.world import add_box, pose_matrix, quaternion, rot_z
+
+PLATFORM = (0.60, 0.50, 0.30)  # full size (length along the heading, width, height), metres
+PLATFORM_LIFT = 0.01  # gap between the floor and the platform's underside
+MOUNT = 0.12  # the arm's base is this far ahead of the platform's centre
+HAND_LINKS = frozenset({7, 8, 9, 10, 11})  # flange, hand, fingers, TCP: may touch what it holds
+ARM_HEIGHT = PLATFORM_LIFT + PLATFORM[2] + 0.001  # the arm's base above the floor
+
+
+def base_transform(pose) -> np.ndarray:
+    """World transform of the base frame: at the floor under the platform's centre."""
+    x, y, psi = (float(v) for v in pose)
+    return pose_matrix((x, y, 0.0), rot_z(psi))
+
+
+def _pose_of(body: int, client: int) -> np.ndarray:
+    pos, orn = pb.getBasePositionAndOrientation(body, physicsClientId=client)
+    R = np.asarray(pb.getMatrixFromQuaternion(orn)).reshape(3, 3)
+    return pose_matrix(pos, R)
+
+
+class MobilePanda:
+    """The mobile manipulator in ``client``; starts at base pose (0, 0, 0), arm at home."""
+
+    def __init__(self, client: int, *, rgba=(0.25, 0.25, 0.3, 1.0)):
+        self.client = client
+        z = PLATFORM_LIFT + PLATFORM[2] / 2
+        self.platform = add_box(client, PLATFORM, (0.0, 0.0, z), rgba=rgba)
+        self.arm = P.Panda(client, (MOUNT, 0.0, ARM_HEIGHT))
+        self.body = self.arm.body
+        self.pose = np.zeros(3)
+        self.held: int | None = None
+        self._tcp_obj = np.eye(4)  # the held object in the TCP frame
+        self._base_obj = np.eye(4)  # ... and in the base frame, for the arm's current q
+        self.set_base(self.pose)
+
+    # -- state -----------------------------------------------------------------------------
+    def set_base(self, pose) -> None:
+        T = base_transform(pose)
+        self.pose = np.asarray(pose, float)
+        c = self.client
+        pb.resetBasePositionAndOrientation(
+            self.platform, (T @ [0.0, 0.0, PLATFORM_LIFT + PLATFORM[2] / 2, 1.0])[:3].tolist(),
+            quaternion(T[:3, :3]).tolist(), physicsClientId=c)
+        self.arm.set_base((T @ [MOUNT, 0.0, ARM_HEIGHT, 1.0])[:3], float(pose[2]))
+        if self.held is not None:
+            self._place_held(T @ self._base_obj)
+
+    def set_arm(self, q) -> None:
+        self.arm.set(q)
+        if self.held is not None:
+            T_obj = self.tcp_transform() @ self._tcp_obj
+            self._base_obj = np.linalg.inv(base_transform(self.pose)) @ T_obj
+            self._place_held(T_obj)
+
+    def tcp_transform(self) -> np.ndarray:
+        state = pb.getLinkState(self.body, P.TCP_LINK, computeForwardKinematics=True,
+                                physicsClientId=self.client)
+        R = np.asarray(pb.getMatrixFromQuaternion(state[5])).reshape(3, 3)
+        return pose_matrix(state[4], R)
+
+    def grasp(self, body: int, tcp_obj: np.ndarray) -> None:
+        """Hold ``body`` with the TCP-to-object transform ``tcp_obj``; places it now."""
+        self.held, self._tcp_obj = body, np.asarray(tcp_obj, float)
+        self.set_arm(self._current_q())
+
+    def release(self) -> None:
+        self.held = None
+
+    def _current_q(self) -> np.ndarray:
+        states = pb.getJointStates(self.body, P.ARM_JOINTS, physicsClientId=self.client)
+        return np.array([s[0] for s in states])
+
+    def _place_held(self, T: np.ndarray) -> None:
+        pb.resetBasePositionAndOrientation(self.held, T[:3, 3].tolist(),
+                                           quaternion(T[:3, :3]).tolist(),
+                                           physicsClientId=self.client)
+
+    # -- collision checks ------------------------------------------------------------------
+    def _in_collision(self) -> bool:
+        """Any penetration of the platform, the arm or the held object with the world (or,
+        for the arm, with itself and the platform), at the state already set."""
+        c = self.client
+        pb.performCollisionDetection(physicsClientId=c)
+        robot = (self.platform, self.body)
+        for pt in pb.getContactPoints(bodyA=self.platform, physicsClientId=c):
+            if pt[8] < 0 and pt[2] not in robot:
+                return True
+        for pt in pb.getContactPoints(bodyA=self.body, physicsClientId=c):
+            if pt[8] < 0 and pt[3] != -1 and not (pt[2] == self.held and pt[3] in HAND_LINKS):
+                return True
+        if self.held is not None:
+            for pt in pb.getContactPoints(bodyA=self.held, physicsClientId=c):
+                if pt[8] < 0 and not (pt[2] == self.body and pt[4] in HAND_LINKS):
+                    return True
+        return False
+
+    def arm_collides(self, q) -> bool:
+        self.set_arm(q)
+        return self._in_collision()
+
+    def base_collides(self, pose) -> bool:
+        self.set_base(pose)
+        return self._in_collision()
+
+    def arm_check(self, states: np.ndarray) -> tuple[bool, int]:
+        """Checker for arm paths (base fixed): stops at the first colliding configuration."""
+        for k, q in enumerate(states):
+            if self.arm_collides(q):
+                return False, k + 1
+        return True, len(states)
+
+    def base_checker(self, psi_scale: float):
+        """Checker for base paths whose states are (x, y, psi_scale · ψ), arm fixed."""
+        def check(states: np.ndarray) -> tuple[bool, int]:
+            for k, s in enumerate(states):
+                if self.base_collides((s[0], s[1], s[2] / psi_scale)):
+                    return False, k + 1
+            return True, len(states)
+        return check
+
+    def ik(self, position, orientation, rng: np.random.Generator, restarts: int):
+        """Panda.ik with this robot's check (platform and held object included)."""
+        return self.arm.ik(position, orientation, rng, restarts, collides=self.arm_collides)
+
+    def held_pose(self) -> np.ndarray:
+        return _pose_of(self.held, self.client)
