@@ -160,7 +160,7 @@ def stage_raw(run: Run) -> None:
         store.create("raw/tries", (n,), (b,), "int32", 0, ("instance",))
         store.create("raw/constraint", (n, p), (b, p), "float64", np.nan, ("instance", "feature"),
                      description="constraint extracted from the raw solution (NaN: none)")
-        store.create_results("raw", (n,), (b,), ("instance",))
+        store.create_results("raw", (n,), (b,), ("instance",), run.domain.steps)
     pending = run._pending("raw")
     if not pending and store.stage_info("raw"):
         run.say("raw: already complete; nothing to do")
@@ -220,7 +220,8 @@ def stage_scores(run: Run) -> None:
     n, m = run.cfg.instances.n, store.stage_info("constraints")["m"]
     bi, bj = run.cfg.store.block_instances, run.cfg.store.block_constraints
     if not store.has("scores/done"):
-        store.create_results("scores", (n, m), (bi, bj), ("instance", "constraint"))
+        store.create_results("scores", (n, m), (bi, bj), ("instance", "constraint"),
+                             run.domain.steps)
     pending = run._pending("scores")
     if not pending and store.stage_info("scores"):
         run.say(f"scores: already complete ({n} x {m}); nothing to do")

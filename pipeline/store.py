@@ -66,6 +66,7 @@ RESULT_COLUMNS = {
     "time": Column("float64", np.nan),  # seconds (the only machine-dependent value)
     "status": Column("int8", -1),  # pipeline.planning.Status; -1 = not computed
     "checks": Column("int64", 0),
+    "step": Column("int8", -1),  # index into the domain's steps of the one that failed; -1: none
 }
 
 
@@ -253,14 +254,18 @@ class ScoreStore:
             arr.attrs.update(attrs)
         return arr
 
-    def create_results(self, group: str, shape, chunks, dims) -> None:
-        """The per-entry result arrays of ``group`` plus its ``done`` mask."""
+    def create_results(self, group: str, shape, chunks, dims, steps=()) -> None:
+        """The per-entry result arrays of ``group`` plus its ``done`` mask; ``steps``: the
+        domain's planning steps, which the ``step`` array indexes."""
         for name, col in RESULT_COLUMNS.items():
             extra = {}
             if name == "status":
                 extra = {"flag_values": [s.value for s in Status],
                          "flag_meanings": " ".join(Status.names()),
                          "not_computed": -1}
+            elif name == "step":
+                extra = {"flag_values": list(range(len(steps))),
+                         "flag_meanings": " ".join(steps), "none": -1}
             self.create(f"{group}/{name}", shape, chunks, col.dtype, col.fill, dims, **extra)
         self.create(f"{group}/done", shape, chunks, "bool", False, dims,
                     description="entries whose block finished (written by the coordinator)")

@@ -40,7 +40,7 @@ def entry_seed(run_seed: int, instance_seed: int, constraint: int) -> int:
     return int(np.random.SeedSequence([run_seed, instance_seed, constraint]).generate_state(1)[0])
 
 
-def _results_block(results: list[PlanResult], shape) -> dict[str, np.ndarray]:
+def _results_block(results: list[PlanResult], shape, steps=()) -> dict[str, np.ndarray]:
     out = {name: np.full(shape, col.fill, dtype=col.dtype) for name, col in RESULT_COLUMNS.items()}
     flat = {name: arr.reshape(-1) for name, arr in out.items()}
     for k, r in enumerate(results):
@@ -50,6 +50,7 @@ def _results_block(results: list[PlanResult], shape) -> dict[str, np.ndarray]:
         flat["time"][k] = r.time
         flat["status"][k] = int(r.status)
         flat["checks"][k] = r.checks
+        flat["step"][k] = steps.index(r.step) if r.step else -1
     return out
 
 
@@ -78,7 +79,8 @@ def score_block(store_path: str, domain_spec: dict, run_seed: int, rows: tuple[i
                 results.append(domain.plan(instance, row, seed=entry_seed(run_seed,
                                                                          int(inst_seed), j)))
     shape = (rows[1] - rows[0], cols[1] - cols[0])
-    _write(store, "scores", (slice(*rows), slice(*cols)), _results_block(results, shape))
+    steps = domain.steps if domain else ()
+    _write(store, "scores", (slice(*rows), slice(*cols)), _results_block(results, shape, steps))
     return _report(results, t0)
 
 
@@ -93,7 +95,7 @@ def raw_block(store_path: str, domain_spec: dict, run_seed: int, rows: tuple[int
                             seed=entry_seed(run_seed, int(s), RAW_ENTRY))
             for spec, s in zip(specs, seeds, strict=True)]
     region = slice(*rows)
-    arrays = _results_block([r.plan for r in raws], (len(raws),))
+    arrays = _results_block([r.plan for r in raws], (len(raws),), domain.steps)
     arrays["tries"] = np.array([r.tries for r in raws], dtype="int32")
     _write(store, "raw", region, arrays)
     store.array("raw/constraint", mode="r+")[region] = np.stack([r.constraint for r in raws])

@@ -18,6 +18,7 @@ DOMAINS = {
     "planar": "pipeline.domains.planar:PlanarDomain",
     "grasp_arm": "pipeline.domains.grasp_arm:GraspArmDomain",
     "grasp_base": "pipeline.domains.grasp_base:GraspBaseDomain",
+    "pick_place": "pipeline.domains.pick_place:PickPlaceDomain",
 }
 
 

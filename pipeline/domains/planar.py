@@ -82,6 +82,7 @@ class PlanarDomain(Domain):
     name = "planar"
     config_class = PlanarConfig
     fixed_constraints = False
+    steps = ("via_leg", "goal_leg")
 
     def __init__(self, config: PlanarConfig, planner):
         super().__init__(config, planner)
@@ -157,7 +158,7 @@ class PlanarDomain(Domain):
         for leg, (a, b) in enumerate(((self.start, via), (via, self.goal))):
             result = self.rrt.plan(a, b, budget, seed=2 * seed + leg)
             if not result.feasible:
-                result.checks = budget.used
+                result.checks, result.step = budget.used, self.steps[leg]
                 return result
             legs.append(result.path)
         path = np.concatenate([legs[0], legs[1][1:]])

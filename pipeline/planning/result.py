@@ -39,6 +39,8 @@ class PlanResult:
     time: float = 0.0
     error: str = ""
     step: str = ""  # the domain's step that failed (Domain.steps); "" when none or feasible
+    #: named parts of ``path`` for plans made of several motions (pick_place), in order
+    segments: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def feasible(self) -> bool:
