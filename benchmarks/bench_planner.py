@@ -9,7 +9,14 @@ Then the same entries with planner=trajopt: median ms per feasible call and succ
 of each planner, and the share of entries feasible for one planner but not the other
 (IK is shared, so both see the same goals).
 
+Then the mobile domains (grasp_base, pick_place; paper §V-B, §V-C): RAWPLANNER on
+``--mobile-instances`` instances, its extracted constraints as Θ̂ (as stage=constraints
+does), and π on every (instance, constraint).  Per domain: median ms per feasible π call,
+mean ms per entry (targets: <= 50 ms grasp_base, <= 200 ms pick_place), median seconds per
+RAWPLANNER solve, and the ratio of the two medians (RAWPLANNER / feasible π).
+
 Run: python benchmarks/bench_planner.py [--instances 20] [--no-trajopt]
+         [--mobile-instances 20] [--only grasp_arm|grasp_base|pick_place]
 """
 
 from __future__ import annotations
@@ -43,7 +50,14 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--instances", type=int, default=20)
     ap.add_argument("--no-trajopt", action="store_true", help="skip the TrajOpt comparison")
+    ap.add_argument("--mobile-instances", type=int, default=20)
+    ap.add_argument("--only", choices=("grasp_arm", *MOBILE_TARGETS_MS))
     args = ap.parse_args()
+    if args.only != "grasp_arm":
+        for name in MOBILE_TARGETS_MS if args.only is None else (args.only,):
+            bench_mobile(name, args.mobile_instances)
+    if args.only not in (None, "grasp_arm"):
+        return
     domain = load_domain("grasp_arm")
     instances = [domain.sample_instance(i) for i in range(args.instances)]
     rates = checks_per_second(domain, instances[:5])
@@ -68,6 +82,42 @@ def main() -> None:
     print(f"  collision checks per entry: mean {checks / entries:,.0f}")
     if not args.no_trajopt:
         compare_trajopt(instances, times, rrt_ok)
+
+
+MOBILE_TARGETS_MS = {"grasp_base": 50, "pick_place": 200}
+
+
+def bench_mobile(name: str, n: int) -> None:
+    domain = load_domain(name)
+    specs = [domain.sample_instance(s) for s in range(n)]
+    domain.plan(specs[0], domain.raw_plan(specs[0], seed=0).constraint, seed=0)  # warm-up
+    raws = [domain.raw_plan(spec, seed=1000 + i) for i, spec in enumerate(specs)]
+    theta = [r.constraint for r in raws if r.plan.feasible]
+    results = []
+    t0 = time.perf_counter()
+    for i, spec in enumerate(specs):
+        for j, row in enumerate(theta):
+            results.append(domain.plan(spec, row, seed=i * len(theta) + j))
+    total = time.perf_counter() - t0
+    ok = [r.time for r in results if r.feasible]
+    raw_s = float(np.median([r.time for r in raws]))
+    print(f"{name}, {n} instances x {len(theta)} extracted constraints = {len(results)} "
+          "entries, one core")
+    print(f"  RAWPLANNER: solved {len(theta)} of {n}; median {raw_s:.3f} s per solve, "
+          f"mean {np.mean([r.time for r in raws]):.3f} s, mean tries "
+          f"{np.mean([r.tries for r in raws]):.1f}")
+    if ok:
+        print(f"  median per feasible pi call: {np.median(ok) * 1e3:.1f} ms ({len(ok)} calls, "
+              f"{len(ok) / len(results):.1%} of entries)")
+        print(f"  ratio median RAWPLANNER solve / median feasible pi call: "
+              f"{raw_s / np.median(ok):.1f}x")
+    print(f"  mean per entry over all entries: {total / len(results) * 1e3:.1f} ms "
+          f"(target <= {MOBILE_TARGETS_MS[name]} ms)")
+    steps = Counter(f"{r.status.name.lower()}" + (f"@{r.step}" if r.step else "")
+                    for r in results)
+    print("  outcomes: " + ", ".join(f"{k} {v} ({v / len(results):.0%})"
+                                     for k, v in steps.most_common()))
+    print()
 
 
 def run_entries(domain, instances):

@@ -60,7 +60,7 @@ class GraspBaseConfig:
     target_size: list[float] = field(default_factory=lambda: [0.04, 0.04, 0.12])
     reach_radius: float = P.REACH  # RAWPLANNER's base-pose disc around the target, metres
     pregrasp_offset: float = 0.10
-    ik_restarts: int = 4
+    ik_restarts: int = 10
     raw_base_samples: int = 40  # collision-free base poses RAWPLANNER tries before giving up
 
 

@@ -59,6 +59,7 @@ from pipeline.domains.mobile_world import (
 )
 from pipeline.planning import PlanResult, RRTConnect, Status
 from pipeline.planning.result import path_length
+from pipeline.planning.rrt import path_is_free
 from pipeline.sim import panda as P
 from pipeline.sim.mobile import base_transform
 from pipeline.sim.world import add_box, pose_matrix, quaternion, rot_z
@@ -93,7 +94,7 @@ class PickPlaceConfig:
     door_width: float = 0.9
     reach_radius: float = P.REACH  # RAWPLANNER's disc for k_b around the placement
     pregrasp_offset: float = 0.10
-    ik_restarts: int = 4
+    ik_restarts: int = 10
     psi_scale: float = 0.5  # metres per radian of base rotation (path metric)
     arm_weight: float = 0.1  # metres per radian of arm motion (score)
     base_max_checks: int = 4000  # collision checks per base path, both legs together
@@ -274,7 +275,8 @@ class PickPlaceDomain(Domain):
         if scene.key != inst:
             bodies = scene.load(inst, [(b, OBSTACLE_RGBA) for b in inst.obstacles])
             rod = rod_box(inst.rod_length, *ROD_START, 0.0, START_TABLE)
-            bodies.append(add_box(scene.client_id, rod.size, rod.position, 0.0, rgba=ROD_RGBA))
+            bodies.append(add_box(scene.client_id, rod.size, rod.position, 0.0, rgba=ROD_RGBA,
+                                  movable=True))
             self._rod = bodies[-1]
         self._reset(inst)
         return scene
@@ -542,13 +544,42 @@ class PickPlaceDomain(Domain):
         return None, draws
 
     # -- inspection ------------------------------------------------------------------------
+    def recheck(self, instance, constraint, plan: PlanResult,
+                resolution: float | None = None) -> dict[str, bool]:
+        """Re-check each planned motion of a feasible ``plan`` in a fresh scene, every edge
+        at ``resolution`` (default: the planners'); also whether the last configuration
+        puts the rod down at θ's placement.  {segment: free, "placed": bool}."""
+        inst, theta = self.check_instance(instance), self.constraint(constraint)
+        scene = self.build_scene(inst)
+        robot, rod = scene.robot, scene.bodies[-1]
+        pick, drive, put = (plan.segments[k] for k in ("pick_path", "base_path", "place_path"))
+        s = self.config.psi_scale
+        try:
+            out = {"pick_path": path_is_free(pick[:, 3:], robot.arm_check,
+                                             resolution or self.planner.resolution)}
+            robot.set_arm(drive[0, 3:])
+            robot.grasp(rod, np.linalg.inv(theta.grasp.rod_tcp(inst.rod_length)))
+            out["base_path"] = path_is_free(drive[:, :3] * [1.0, 1.0, s], robot.base_checker(s),
+                                            resolution or self.config.base_resolution)
+            robot.set_base(put[0, :3])
+            out["place_path"] = path_is_free(put[:, 3:], robot.arm_check,
+                                             resolution or self.planner.resolution)
+            robot.set_arm(put[-1, 3:])
+            placed, held = self.rod_pose(inst.rod_length, theta.placement), robot.held_pose()
+            out["placed"] = bool(np.linalg.norm(held[:3, 3] - placed[:3, 3]) < 0.01
+                                 and np.abs(held[:3, :3] - placed[:3, :3]).max() < 0.06)
+        finally:
+            scene.close()
+        return out
+
     def build_scene(self, instance) -> MobileScene:
         """A new scene (its own pybullet client) for inspection; close() it when done."""
         inst = self.check_instance(instance)
         scene = MobileScene(self.furniture)
         scene.load(inst, [(b, OBSTACLE_RGBA) for b in inst.obstacles])
         rod = rod_box(inst.rod_length, *ROD_START, 0.0, START_TABLE)
-        scene.bodies.append(add_box(scene.client_id, rod.size, rod.position, 0.0, rgba=ROD_RGBA))
+        scene.bodies.append(add_box(scene.client_id, rod.size, rod.position, 0.0, rgba=ROD_RGBA,
+                                  movable=True))
         scene.robot.set_base(START_POSE)
         return scene
 

@@ -43,7 +43,7 @@ class MobilePanda:
     def __init__(self, client: int, *, rgba=(0.25, 0.25, 0.3, 1.0)):
         self.client = client
         z = PLATFORM_LIFT + PLATFORM[2] / 2
-        self.platform = add_box(client, PLATFORM, (0.0, 0.0, z), rgba=rgba)
+        self.platform = add_box(client, PLATFORM, (0.0, 0.0, z), rgba=rgba, movable=True)
         self.arm = P.Panda(client, (MOUNT, 0.0, ARM_HEIGHT))
         self.body = self.arm.body
         self.pose = np.zeros(3)

@@ -27,12 +27,27 @@ def rot_z(yaw: float) -> np.ndarray:
 
 
 def quaternion(R: np.ndarray) -> np.ndarray:
-    """(x, y, z, w) of a rotation matrix (pybullet's order)."""
-    w = np.sqrt(max(0.0, 1 + R[0, 0] + R[1, 1] + R[2, 2])) / 2
-    x = np.copysign(np.sqrt(max(0.0, 1 + R[0, 0] - R[1, 1] - R[2, 2])) / 2, R[2, 1] - R[1, 2])
-    y = np.copysign(np.sqrt(max(0.0, 1 - R[0, 0] + R[1, 1] - R[2, 2])) / 2, R[0, 2] - R[2, 0])
-    z = np.copysign(np.sqrt(max(0.0, 1 - R[0, 0] - R[1, 1] + R[2, 2])) / 2, R[1, 0] - R[0, 1])
-    return np.array([x, y, z, w])
+    """(x, y, z, w) of a rotation matrix (pybullet's order).
+
+    Shepperd's method: solve for the largest of |w|, |x|, |y|, |z| first and get the
+    others from off-diagonal sums, so rotations by π (w = 0) keep their axis's signs.
+    """
+    t = np.trace(R)
+    k = int(np.argmax([t, R[0, 0], R[1, 1], R[2, 2]]))
+    if k == 0:
+        w = np.sqrt(1 + t) / 2
+        q = [(R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w),
+             (R[1, 0] - R[0, 1]) / (4 * w), w]
+    else:
+        i = k - 1
+        j, m = (i + 1) % 3, (i + 2) % 3
+        v = np.sqrt(max(0.0, 1 + 2 * R[i, i] - t)) / 2
+        q = [0.0, 0.0, 0.0, (R[m, j] - R[j, m]) / (4 * v)]
+        q[i] = v
+        q[j] = (R[j, i] + R[i, j]) / (4 * v)
+        q[m] = (R[m, i] + R[i, m]) / (4 * v)
+    q = np.asarray(q)
+    return q / np.linalg.norm(q)
 
 
 def pose_matrix(position, R: np.ndarray) -> np.ndarray:
@@ -43,13 +58,19 @@ def pose_matrix(position, R: np.ndarray) -> np.ndarray:
     return T
 
 
-def add_box(client: int, size, position, yaw: float = 0.0, rgba=(0.6, 0.6, 0.6, 1.0)) -> int:
-    """A static box of full extents ``size`` centred at ``position``, rotated by ``yaw``."""
+def add_box(client: int, size, position, yaw: float = 0.0, rgba=(0.6, 0.6, 0.6, 1.0),
+            movable: bool = False) -> int:
+    """A box of full extents ``size`` centred at ``position``, rotated by ``yaw``.
+
+    pybullet reports no contacts between two bodies of mass 0, so a box that moves and must
+    be checked against the static scenery (a robot's platform, an object it carries) is
+    ``movable``: it gets a mass.  Nothing here steps the simulation, so mass moves nothing.
+    """
     half = [float(s) / 2 for s in size]
     shape = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=client)
     visual = pb.createVisualShape(pb.GEOM_BOX, halfExtents=half, rgbaColor=list(rgba),
                                   physicsClientId=client)
-    return pb.createMultiBody(baseMass=0, baseCollisionShapeIndex=shape,
+    return pb.createMultiBody(baseMass=1.0 if movable else 0.0, baseCollisionShapeIndex=shape,
                               baseVisualShapeIndex=visual,
                               basePosition=[float(p) for p in position],
                               baseOrientation=yaw_quaternion(yaw), physicsClientId=client)
