@@ -39,7 +39,7 @@ def matrix(store: Path) -> dict[str, np.ndarray]:
     """The deterministic part of D (everything but times)."""
     g = zarr.open_group(store, mode="r", use_consolidated=False)
     return {name: g[f"scores/{name}"][...] for name in ("score", "feasible", "status", "checks",
-                                                         "length")}
+                                                         "length", "step")}
 
 
 def done_count(store: Path) -> int:

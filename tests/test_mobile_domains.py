@@ -252,3 +252,62 @@ def test_quaternions_round_trip_including_half_turns():
     for R in [*Rotation.random(200, random_state=1).as_matrix(), *half_turns.as_matrix()]:
         back = np.reshape(pb.getMatrixFromQuaternion(quaternion(R)), (3, 3))
         np.testing.assert_allclose(back, R, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["grasp_base", "pick_place"])
+def test_pipeline_stores_the_failing_step_and_replays_entries(name, tmp_path):
+    """A small ``python -m pipeline stage=generate`` run: the step array names the domain's
+    steps, is -1 exactly where an entry is feasible, and an entry planned again from its
+    stored seed gives the stored result."""
+    import zarr
+
+    from pipeline.worker import entry_seed
+    from tests.pipeline_runs import env
+
+    store = tmp_path / f"{name}.zarr"
+    cmd = [sys.executable, "-m", "pipeline", "stage=generate", f"domain={name}",
+           "instances.n=8", "constraints.m=6", "store.block_instances=4",
+           "store.block_constraints=3", "progress=false", "cluster.n_workers=2",
+           f"store.path={store}"]
+    done = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, env=env(),
+                          timeout=600)
+    assert done.returncode == 0, done.stdout + done.stderr
+    g = zarr.open_group(store, mode="r", use_consolidated=False)
+    domain = load_domain(name)
+    step = g["scores/step"]
+    assert step.attrs["flag_meanings"].split() == list(domain.steps)
+    feasible, steps, status = g["scores/feasible"][...], step[...], g["scores/status"][...]
+    assert ((steps == -1) == feasible).all() and (steps < len(domain.steps)).all()
+    assert feasible.any() and not feasible.all()
+    theta, seeds = g["constraints/theta"][...], g["instances/seed"][...]
+    specs = g["instances/spec"][...]
+    for i, j in [(0, 0), *zip(*np.nonzero(~feasible), strict=True)][:3]:
+        plan = domain.plan(json.loads(str(specs[i])), theta[j],
+                           seed=entry_seed(0, int(seeds[i]), int(j)))
+        assert int(plan.status) == status[i, j]
+        assert (domain.steps.index(plan.step) if plan.step else -1) == steps[i, j]
+
+
+def test_pick_place_step_orders_agree_on_every_outcome_and_cheap_first_checks_less(
+        pick_place, open_route):
+    _, raw = open_route
+    cheap = load_domain("pick_place", step_order="cheap_first")
+    thetas = [raw.constraint] + [cheap.raw_plan(cheap.sample_instance(s), seed=s).constraint
+                                 for s in (1, 2)]
+    specs = [pick_place.sample_instance(s) for s in (1, 2, 3)]
+    refuted = {"paper": 0, "cheap_first": 0}
+    for spec in specs:
+        for row in thetas:
+            if np.isnan(row).any():
+                continue
+            a, b = pick_place.plan(spec, row, seed=5), cheap.plan(spec, row, seed=5)
+            assert a.feasible == b.feasible
+            if a.feasible:
+                np.testing.assert_array_equal(a.path, b.path)
+                assert a.length == b.length
+            else:
+                refuted["paper"] += a.checks
+                refuted["cheap_first"] += b.checks
+    assert refuted["cheap_first"] < refuted["paper"]
+    with pytest.raises(ValueError, match="step_order"):
+        load_domain("pick_place", step_order="fastest")

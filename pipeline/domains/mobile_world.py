@@ -15,6 +15,7 @@ from pipeline.sim.mobile import PLATFORM, MobilePanda
 from pipeline.sim.world import add_box, camera_image, connect, rot_z
 
 FURNITURE_RGBA = (0.55, 0.45, 0.35, 1.0)
+FLOOR_RGBA = (0.85, 0.85, 0.82, 1.0)
 OBSTACLE_RGBA = (0.75, 0.2, 0.15, 1.0)
 TARGET_RGBA = (0.15, 0.3, 0.85, 1.0)
 FLOOR = Box((12.0, 12.0, 0.02), (0.0, 0.0, -0.01), 0.0)
@@ -102,7 +103,8 @@ class MobileScene:
 
     def __init__(self, furniture: list[Box]):
         self.client_id = connect()
-        for b in (FLOOR, *furniture):
+        add_box(self.client_id, FLOOR.size, FLOOR.position, rgba=FLOOR_RGBA)
+        for b in furniture:
             add_box(self.client_id, b.size, b.position, b.yaw, rgba=FURNITURE_RGBA)
         self.robot = MobilePanda(self.client_id)
         self.robot_ids = (self.robot.platform, self.robot.body)

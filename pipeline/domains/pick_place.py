@@ -20,7 +20,11 @@ in a failed result's ``step``:
 ``place_path``  arm path carry → place at k_b, the rod collision-checked in the hand
 ``base_path``   base path start → k_sg → k_b in (x, y, ψ), arm in carry, rod checked
 
-The cheap checks run first and the base path, the most expensive, last.  Grasping,
+``step_order: paper`` (the default) runs them motion by motion as the paper's π does:
+pick_ik, pick_path, carry, base_pose, base_path, placement, place_ik, place_path, so that a
+θ whose placement is blocked is refuted only after the pick and the drive, the expensive
+refutations the paper describes; ``cheap_first`` runs them in the order listed above
+(same outcome, feasible or not, with far cheaper refutations).  Grasping,
 lifting and stowing the rod in the carry configuration are not planned (the paper's π
 plans the same three motions).  Score = -(base path length + ``arm_weight`` × arm path
 lengths): base length in the metric sqrt(dx² + dy² + (``psi_scale`` · dψ)²), metres; arm
@@ -78,6 +82,11 @@ SUBGOAL_GAP = 0.6  # metres in front of the wall where k_sg is taken from a raw 
 CARRY_TCP = np.array([0.55, 0.0, 1.0])  # the TCP while driving, in the base frame
 STEPS = ("carry", "placement", "base_pose", "place_ik", "pick_ik", "pick_path",
          "place_path", "base_path")
+#: the orders π can run its steps in (``step_order``): the paper's, motion by motion, where
+#: a bad θ shows only late and is expensive to refute; or the cheap checks first
+ORDERS = {"paper": ("pick_ik", "pick_path", "carry", "base_pose", "base_path", "placement",
+                    "place_ik", "place_path"),
+          "cheap_first": STEPS}
 FRACTIONS = np.linspace(-0.8, 0.8, 9)  # grasp position along the rod, × half-length
 ANGLES = (-np.pi / 6, 0.0, np.pi / 6)
 
@@ -102,6 +111,7 @@ class PickPlaceConfig:
     raw_grasps: int = 81  # RAWPLANNER: grasps tried at most
     raw_placements: int = 6  # placements per grasp
     raw_base_samples: int = 6  # collision-free k_b per placement
+    step_order: str = "paper"  # or "cheap_first" (pipeline.domains.pick_place.ORDERS)
 
 
 @dataclass(frozen=True)
@@ -195,6 +205,9 @@ class PickPlaceDomain(Domain):
                 and c.base_max_checks >= 1 and c.base_resolution > 0):
             raise ValueError("domain: need reach_radius, psi_scale, base_resolution > 0, "
                              "arm_weight >= 0 and base_max_checks >= 1")
+        if c.step_order not in ORDERS:
+            raise ValueError(f"domain.step_order must be one of {', '.join(ORDERS)}, got "
+                             f"{c.step_order!r}")
         if min(c.raw_grasps, c.raw_placements, c.raw_base_samples) < 1:
             raise ValueError("domain.raw_*: need at least 1 of each")
         self.grasps = rod_grasps()
@@ -332,50 +345,79 @@ class PickPlaceDomain(Domain):
             self._reset(inst)
 
     def _plan_route(self, inst: PickPlaceInstance, theta: Route, seed: int) -> PlanResult:
-        robot = self._scene.robot
-        checks = 0
+        """Run the steps in the configured order; the first that fails ends the call."""
+        done: dict = {"checks": 0}
+        for step in ORDERS[self.config.step_order]:
+            failed = getattr(self, f"_step_{step}")(inst, theta, seed, done)
+            if failed is not None:
+                failed.checks, failed.step = done["checks"], step
+                return failed
+        return self._joined(done["pick_path"], done["base_path"], done["place_path"],
+                            done["carry"], theta.place_pose, done["checks"])
 
-        def fail(status: Status, step: str) -> PlanResult:
-            return PlanResult(status, checks=checks, step=step)
+    # Each step reads what earlier steps left in ``done``, adds its own result and its
+    # collision checks, and returns None, or a PlanResult when it fails.
+    def _step_carry(self, inst, theta: Route, seed: int, done: dict):
+        """Cached per grasp and rod length, so its IK checks are not charged to entries."""
+        done["carry"], status = self.carry(inst, theta.grasp)
+        return None if done["carry"] is not None else PlanResult(status)
 
-        carry, status = self.carry(inst, theta.grasp)
-        if carry is None:
-            return fail(status, "carry")
+    def _step_placement(self, inst, theta: Route, seed: int, done: dict):
+        self._reset(inst)
         self._put_rod(rod_box(inst.rod_length, *theta.placement, GOAL_TABLE))
-        checks += 1
+        done["checks"] += 1
         if not _on_table(inst.rod_length, theta.placement) or self._rod_collides():
-            return fail(Status.GOAL_IN_COLLISION, "placement")
-        self._hold(inst, theta.grasp, carry)
+            return PlanResult(Status.GOAL_IN_COLLISION)
+        return None
+
+    def _step_base_pose(self, inst, theta: Route, seed: int, done: dict):
+        self._hold(inst, theta.grasp, done["carry"])
         for pose, status in ((theta.subgoal, Status.START_IN_COLLISION),
                              (theta.place_pose, Status.GOAL_IN_COLLISION)):
-            checks += 1
-            if robot.base_collides(pose):
-                return fail(status, "base_pose")
-        place, n, status = self._place_ik(inst, theta, seed)
-        checks += n
-        if place is None:
-            return fail(status, "place_ik")
+            done["checks"] += 1
+            if self._scene.robot.base_collides(pose):
+                return PlanResult(status)
+        return None
+
+    def _step_place_ik(self, inst, theta: Route, seed: int, done: dict):
         self._reset(inst)
-        pre, n, status = self._pick_ik(inst, theta.grasp, seed)
-        checks += n
-        if pre is None:
-            return fail(status, "pick_ik")
-        pick = self.rrt.plan(P.HOME, pre, self.rrt.budget(robot.arm_check), seed=2 * seed)
-        checks += pick.checks
-        if not pick.feasible:
-            return _failed(pick, checks, "pick_path")
-        self._hold(inst, theta.grasp, carry)
+        self._hold(inst, theta.grasp, done["carry"])
+        self._scene.robot.set_base(theta.place_pose)
+        done["place"], n, status = self._place_ik(inst, theta, seed)
+        done["checks"] += n
+        return None if done["place"] is not None else PlanResult(status)
+
+    def _step_pick_ik(self, inst, theta: Route, seed: int, done: dict):
+        self._reset(inst)
+        done["pre"], n, status = self._pick_ik(inst, theta.grasp, seed)
+        done["checks"] += n
+        return None if done["pre"] is not None else PlanResult(status)
+
+    def _step_pick_path(self, inst, theta: Route, seed: int, done: dict):
+        self._reset(inst)
+        robot = self._scene.robot
+        return self._path(done, "pick_path", self.rrt.plan(
+            P.HOME, done["pre"], self.rrt.budget(robot.arm_check), seed=2 * seed))
+
+    def _step_place_path(self, inst, theta: Route, seed: int, done: dict):
+        self._reset(inst)
+        self._hold(inst, theta.grasp, done["carry"])
+        robot = self._scene.robot
         robot.set_base(theta.place_pose)
-        put = self.rrt.plan(carry, place, self.rrt.budget(robot.arm_check), seed=2 * seed + 1)
-        checks += put.checks
-        if not put.feasible:
-            return _failed(put, checks, "place_path")
-        drive = self._drive(inst, theta.grasp, carry, [START_POSE, theta.subgoal,
-                                                       theta.place_pose], seed)
-        checks += drive.checks
-        if not drive.feasible:
-            return _failed(drive, checks, "base_path")
-        return self._joined(pick.path, drive.path, put.path, carry, theta.place_pose, checks)
+        return self._path(done, "place_path", self.rrt.plan(
+            done["carry"], done["place"], self.rrt.budget(robot.arm_check), seed=2 * seed + 1))
+
+    def _step_base_path(self, inst, theta: Route, seed: int, done: dict):
+        self._reset(inst)
+        return self._path(done, "base_path", self._drive(
+            inst, theta.grasp, done["carry"], [START_POSE, theta.subgoal, theta.place_pose],
+            seed))
+
+    @staticmethod
+    def _path(done: dict, key: str, result: PlanResult):
+        done["checks"] += result.checks
+        done[key] = result.path
+        return None if result.feasible else result
 
     def _hold(self, inst, g: RodGrasp, carry: np.ndarray) -> None:
         """The rod in the hand, the arm in the carry configuration."""
