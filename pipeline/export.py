@@ -28,6 +28,8 @@ def _arrays(store: ScoreStore) -> dict[str, np.ndarray]:
         "length": length,
         "status": store.array("scores/status")[...],
         "checks": store.array("scores/checks")[...],
+        "step": (store.array("scores/step")[...] if store.has("scores/step")  # older stores
+                 else np.full(feasible.shape, -1, dtype="int8")),
         "done": done,
         "instance_seed": store.array("instances/seed")[...],
     }
@@ -42,6 +44,8 @@ def metadata(store: ScoreStore, arrays: dict) -> dict:
             "git_revision": attrs.get("git_revision"), "created": attrs.get("created"),
             "stages": attrs.get("stages"), "complete": bool(arrays["done"].all()),
             "status_codes": {s.name: int(s) for s in Status},
+            "steps": (store.array("scores/step").attrs.get("flag_meanings", "").split()
+                      if store.has("scores/step") else []),
             "score": "-(path length) where feasible; 0 where infeasible or not computed",
             "times": "seconds per planning call; NaN where not computed"}
 
@@ -69,12 +73,15 @@ def export(path, fmt: str, out: Path | None = None) -> tuple[Path, bool]:
     with open(out / "entries.csv", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["instance", "constraint", "done", "feasible", "length", "time", "status",
-                    "checks"])
+                    "checks", "step"])
+        steps = meta["steps"]
         for i in range(n):
             for j in range(m):
+                k = int(arrays["step"][i, j])
                 w.writerow([i, j, int(arrays["done"][i, j]), int(arrays["feasible"][i, j]),
                             _cell(arrays["length"][i, j]), _cell(arrays["times"][i, j]),
-                            int(arrays["status"][i, j]), int(arrays["checks"][i, j])])
+                            int(arrays["status"][i, j]), int(arrays["checks"][i, j]),
+                            steps[k] if 0 <= k < len(steps) else ""])
     with open(out / "constraints.csv", "w", newline="") as f:
         w = csv.writer(f)
         theta = arrays["features"]

@@ -77,6 +77,10 @@ def test_export_csv_holds_one_row_per_entry(made, tmp_path):
     assert [int(r["status"]) for r in rows] == status.reshape(-1).tolist()
     meta = json.loads((tmp_path / "c" / "metadata.json").read_text())
     assert meta["config"]["domain"]["name"] == "planar"
+    assert meta["steps"] == ["via_leg", "goal_leg"]
+    steps = {r["step"] for r in rows if r["feasible"] == "0"}
+    assert steps and steps <= {"via_leg", "goal_leg"}
+    assert {r["step"] for r in rows if r["feasible"] == "1"} == {""}
 
 
 def test_export_refuses_bad_formats_and_foreign_paths(made, tmp_path):

@@ -3,7 +3,8 @@
 Two rooms side by side, split by a wall at x = 0 with a door of ``door_width`` in it.  The
 mobile Panda (:mod:`pipeline.sim.mobile`) starts at the same pose in the first room, facing
 a table with a rod (one of ``rod_lengths``) lying on it at a fixed pose.  Per instance,
-``obstacles`` boxes lie at random on that table and on the goal table in the second room.
+``obstacles`` boxes lie at random, half on that table and half on the goal table in the
+second room.
 
 A constraint θ = (grasp g, placement o, pre-place base pose k_b, subgoal base pose k_sg).
 The 81 grasps: 9 positions along the rod × 3 wrist rotations × 3 approach tilts about the
@@ -74,7 +75,7 @@ WALL_THICKNESS = 0.10
 WALL_HEIGHT = 1.5
 ROOMS = (-3.0, 3.0, -1.6, 1.6)  # x0, x1, y0, y1 of both rooms together
 START_TABLE = Table((-1.9, -1.15), (1.2, 0.6), 0.40)
-GOAL_TABLE = Table((2.1, 0.0), (0.7, 2.0), 0.40)
+GOAL_TABLE = Table((2.1, 0.0), (0.8, 2.4), 0.40)
 ROD_START = (-1.9, -1.05)  # centre (x, y) of the rod on the start table, along x
 START_POSE = np.array([-1.9, -0.35, -np.pi / 2])  # facing the start table
 PARK_POSE = np.array([0.0, -4.0, 0.0])  # outside the rooms: where carry IK is solved
@@ -236,9 +237,10 @@ class PickPlaceDomain(Domain):
         placer = TablePlacer(rng, [START_TABLE, GOAL_TABLE])
         placer.block(rectangle(ROD_START, (length + 0.16, ROD_SECTION + 0.16), 0.0))
         obstacles = []
-        for _ in range(c.obstacles):
+        for k in range(c.obstacles):  # half on each table
             edge = rng.uniform(*c.obstacle_size, 2)
-            box = placer.place(np.array([edge[0], edge[1], rng.uniform(*c.obstacle_height)]))
+            box = placer.place(np.array([edge[0], edge[1], rng.uniform(*c.obstacle_height)]),
+                               table=k % 2)
             if box is not None:
                 obstacles.append(box)
         return {"domain": self.name, "seed": int(seed), "rod_length": length,
