@@ -77,9 +77,14 @@ class Domain(abc.ABC):
     def check_instance(self, instance: dict[str, Any]) -> Any:
         """Validate a spec; return the domain's parsed form or raise InstanceError."""
 
-    @abc.abstractmethod
     def constraints(self, extracted: ConstraintSet | None = None) -> ConstraintSet:
-        """Θ̂: the fixed set, or the constraints ``extracted`` from raw solutions."""
+        """Θ̂: the fixed set (domains with ``fixed_constraints`` override this), or the
+        constraints ``extracted`` from raw solutions, less the rows of failed solves."""
+        if extracted is None:
+            raise ValueError(f"{self.name} constraints come from RAWPLANNER's solutions: "
+                             "pass the extracted ones")
+        keep = np.all(np.isfinite(extracted.features), axis=1)
+        return ConstraintSet(extracted.features[keep], extracted.source_instance[keep])
 
     @abc.abstractmethod
     def constraint(self, constraint):

@@ -169,6 +169,24 @@ def parse_box(value, key: str) -> Box:
     return Box(tuple(size), tuple(pos), float(yaw))
 
 
+def parse_obstacles(instance) -> tuple[Box, ...]:
+    """The spec's ``obstacles`` list as boxes (InstanceError naming a bad one)."""
+    return tuple(parse_box(o, f"obstacles[{k}]")
+                 for k, o in enumerate(require(instance, "obstacles", list)))
+
+
+def sample_obstacles(rng: np.random.Generator, count: int, size, height, place) -> list[dict]:
+    """``count`` boxes with edges drawn from ``size`` and heights from ``height``, each put
+    where ``place(size)`` says (None: no room left, the box is dropped)."""
+    boxes = []
+    for _ in range(count):
+        edge = rng.uniform(*size, 2)
+        box = place(np.array([edge[0], edge[1], rng.uniform(*height)]))
+        if box is not None:
+            boxes.append(box)
+    return boxes
+
+
 class GraspArmDomain(Domain):
     name = "grasp_arm"
     config_class = GraspArmConfig
@@ -216,12 +234,8 @@ class GraspArmDomain(Domain):
             return None
 
         target = place(np.asarray(c.target_size, float))
-        obstacles = []
-        for _ in range(int(rng.integers(c.obstacles_min, c.obstacles_max + 1))):
-            edge = rng.uniform(*c.obstacle_size, 2)
-            box = place(np.array([edge[0], edge[1], rng.uniform(*c.obstacle_height)]))
-            if box is not None:
-                obstacles.append(box)
+        count = int(rng.integers(c.obstacles_min, c.obstacles_max + 1))
+        obstacles = sample_obstacles(rng, count, c.obstacle_size, c.obstacle_height, place)
         return {"domain": self.name, "seed": int(seed), "target": target,
                 "obstacles": obstacles}
 
@@ -230,9 +244,7 @@ class GraspArmDomain(Domain):
             return instance
         seed = require(instance, "seed", int)
         target = parse_box(require(instance, "target", dict), "target")
-        obstacles = tuple(parse_box(o, f"obstacles[{k}]")
-                          for k, o in enumerate(require(instance, "obstacles", list)))
-        return GraspArmInstance(seed, target, obstacles)
+        return GraspArmInstance(seed, target, parse_obstacles(instance))
 
     # -- constraints -----------------------------------------------------------------------
     def constraints(self, extracted: ConstraintSet | None = None) -> ConstraintSet:
@@ -335,4 +347,5 @@ def _feature_index(row: tuple) -> int | None:
     return _feature_table().get(row)
 
 
-__all__ = ["GraspArmConfig", "GraspArmDomain", "grasp_set", "hand_orientation", "pregrasp_pose"]
+__all__ = ["GraspArmConfig", "GraspArmDomain", "grasp_set", "hand_orientation", "parse_obstacles",
+           "pregrasp_pose", "sample_obstacles"]

@@ -27,8 +27,16 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.domains.base import ConstraintSet, Domain, RawResult, require
-from pipeline.domains.grasp_arm import Box, Grasp, grasp_set, parse_box, pregrasp_pose
+from pipeline.domains.base import Domain, RawResult, require
+from pipeline.domains.grasp_arm import (
+    Box,
+    Grasp,
+    grasp_set,
+    parse_box,
+    parse_obstacles,
+    pregrasp_pose,
+    sample_obstacles,
+)
 from pipeline.domains.mobile_world import (
     OBSTACLE_RGBA,
     TARGET_RGBA,
@@ -113,12 +121,8 @@ class GraspBaseDomain(Domain):
         rng = np.random.default_rng(int(seed))
         placer = TablePlacer(rng, list(TABLES))
         target = placer.place(np.asarray(c.target_size, float))
-        obstacles = []
-        for _ in range(c.obstacles):
-            edge = rng.uniform(*c.obstacle_size, 2)
-            box = placer.place(np.array([edge[0], edge[1], rng.uniform(*c.obstacle_height)]))
-            if box is not None:
-                obstacles.append(box)
+        obstacles = sample_obstacles(rng, c.obstacles, c.obstacle_size, c.obstacle_height,
+                                     placer.place)
         return {"domain": self.name, "seed": int(seed), "target": target,
                 "obstacles": obstacles}
 
@@ -127,18 +131,9 @@ class GraspBaseDomain(Domain):
             return instance
         seed = require(instance, "seed", int)
         target = parse_box(require(instance, "target", dict), "target")
-        obstacles = tuple(parse_box(o, f"obstacles[{k}]")
-                          for k, o in enumerate(require(instance, "obstacles", list)))
-        return GraspBaseInstance(seed, target, obstacles)
+        return GraspBaseInstance(seed, target, parse_obstacles(instance))
 
     # -- constraints -----------------------------------------------------------------------
-    def constraints(self, extracted: ConstraintSet | None = None) -> ConstraintSet:
-        if extracted is None:
-            raise ValueError("grasp_base constraints come from RAWPLANNER's solutions: "
-                             "pass the extracted ones")
-        keep = np.all(np.isfinite(extracted.features), axis=1)
-        return ConstraintSet(extracted.features[keep], extracted.source_instance[keep])
-
     def constraint(self, constraint) -> BaseGrasp:
         """θ from its feature row (x, y, ψ, approach, rotation, depth)."""
         if isinstance(constraint, BaseGrasp):

@@ -51,8 +51,8 @@ from pathlib import Path
 import numpy as np
 import pybullet as pb
 
-from pipeline.domains.base import ConstraintSet, Domain, InstanceError, RawResult, require
-from pipeline.domains.grasp_arm import Box, hand_orientation, parse_box
+from pipeline.domains.base import Domain, InstanceError, RawResult, require
+from pipeline.domains.grasp_arm import Box, hand_orientation, parse_obstacles, sample_obstacles
 from pipeline.domains.mobile_world import (
     OBSTACLE_RGBA,
     MobileScene,
@@ -236,13 +236,9 @@ class PickPlaceDomain(Domain):
         length = float(c.rod_lengths[int(rng.integers(len(c.rod_lengths)))])
         placer = TablePlacer(rng, [START_TABLE, GOAL_TABLE])
         placer.block(rectangle(ROD_START, (length + 0.16, ROD_SECTION + 0.16), 0.0))
-        obstacles = []
-        for k in range(c.obstacles):  # half on each table
-            edge = rng.uniform(*c.obstacle_size, 2)
-            box = placer.place(np.array([edge[0], edge[1], rng.uniform(*c.obstacle_height)]),
-                               table=k % 2)
-            if box is not None:
-                obstacles.append(box)
+        tables = iter(range(c.obstacles))  # half on each table
+        obstacles = sample_obstacles(rng, c.obstacles, c.obstacle_size, c.obstacle_height,
+                                     lambda size: placer.place(size, table=next(tables) % 2))
         return {"domain": self.name, "seed": int(seed), "rod_length": length,
                 "obstacles": obstacles}
 
@@ -253,18 +249,9 @@ class PickPlaceDomain(Domain):
         length = require(instance, "rod_length", (int, float))
         if not 0.1 <= length <= 1.2:
             raise InstanceError("instance spec: rod_length must be in [0.1, 1.2] m")
-        obstacles = tuple(parse_box(o, f"obstacles[{k}]")
-                          for k, o in enumerate(require(instance, "obstacles", list)))
-        return PickPlaceInstance(seed, float(length), obstacles)
+        return PickPlaceInstance(seed, float(length), parse_obstacles(instance))
 
     # -- constraints -----------------------------------------------------------------------
-    def constraints(self, extracted: ConstraintSet | None = None) -> ConstraintSet:
-        if extracted is None:
-            raise ValueError("pick_place constraints come from RAWPLANNER's solutions: "
-                             "pass the extracted ones")
-        keep = np.all(np.isfinite(extracted.features), axis=1)
-        return ConstraintSet(extracted.features[keep], extracted.source_instance[keep])
-
     def constraint(self, constraint) -> Route:
         """θ from its feature row: grasp (fraction, rotation, tilt), placement (x, y, yaw),
         k_b (x, y, ψ), k_sg (x, y, ψ)."""

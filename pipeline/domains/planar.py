@@ -17,7 +17,6 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.domains.base import (
-    ConstraintSet,
     Domain,
     InstanceError,
     RawResult,
@@ -136,13 +135,6 @@ class PlanarDomain(Domain):
         if np.any(boxes[:, 2:] <= 0):
             raise InstanceError("instance spec: field 'obstacles' has a box with a size <= 0")
         return PlanarInstance(seed=seed, boxes=boxes)
-
-    def constraints(self, extracted: ConstraintSet | None = None) -> ConstraintSet:
-        if extracted is None:
-            raise ValueError("planar constraints come from RAWPLANNER's solutions: "
-                             "pass the extracted ones")
-        keep = np.all(np.isfinite(extracted.features), axis=1)
-        return ConstraintSet(extracted.features[keep], extracted.source_instance[keep])
 
     def constraint(self, constraint) -> np.ndarray:
         """The via-point θ as a 2-vector."""
