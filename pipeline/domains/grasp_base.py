@@ -159,12 +159,12 @@ class GraspBaseDomain(Domain):
     def _plan(self, inst: GraspBaseInstance, theta: BaseGrasp, seed: int) -> PlanResult:
         robot = self.scene(inst).robot
         try:
-            return self._plan_at(inst, theta, seed)
+            return self._plan_at(robot, inst, theta, seed)
         finally:  # the next call must find the arm at home
             robot.set_arm(P.HOME)
 
-    def _plan_at(self, inst: GraspBaseInstance, theta: BaseGrasp, seed: int) -> PlanResult:
-        robot = self.scene(inst).robot
+    def _plan_at(self, robot, inst: GraspBaseInstance, theta: BaseGrasp,
+                 seed: int) -> PlanResult:
         robot.set_arm(P.HOME)
         if robot.base_collides(theta.pose):
             return PlanResult(Status.START_IN_COLLISION, checks=1, step="base")

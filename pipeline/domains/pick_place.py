@@ -397,7 +397,6 @@ class PickPlaceDomain(Domain):
             done["carry"], done["place"], self.rrt.budget(robot.arm_check), seed=2 * seed + 1))
 
     def _step_base_path(self, inst, theta: Route, seed: int, done: dict):
-        self._reset(inst)
         return self._path(done, "base_path", self._drive(
             inst, theta.grasp, done["carry"], [START_POSE, theta.subgoal, theta.place_pose],
             seed))
@@ -531,7 +530,6 @@ class PickPlaceDomain(Domain):
         while free < c.raw_base_samples and draws < 20 * c.raw_base_samples:
             pose = sample_base_pose(rng, placement[:2], c.reach_radius)
             draws, checks = draws + 1, checks + 1
-            self._put_rod(rod_box(inst.rod_length, *placement, GOAL_TABLE))
             self._hold(inst, g, carry)
             if not _in_rooms(pose) or robot.base_collides(pose):
                 continue
