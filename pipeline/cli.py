@@ -47,17 +47,22 @@ def evaluate(
     seed: int = typer.Option(0, help="Seed of the random selectors (fold i uses (seed, i))."),
     c: float = typer.Option(1.96, help="BOX's UCB coefficient."),
     failure_rule: str = typer.Option("magnitude", help="Failure score rule: magnitude or literal."),
-    scores_var: str = typer.Option("scores", help="Name of the score matrix array / variable."),
-    times_var: str = typer.Option("times", help="Name of the per-entry planning times (seconds)."),
-    feasible_var: str = typer.Option("feasible", help="Name of the feasibility mask."),
-    features_var: str = typer.Option("features", help="Name of the constraint features (m x p)."),
+    scores_var: str = typer.Option(None, help="Name of the score matrix array / variable "
+                                   "(default: scores). A name given must exist."),
+    times_var: str = typer.Option(None, help="Name of the per-entry planning times, seconds "
+                                  "(default: times or time when present, else 1 per try)."),
+    feasible_var: str = typer.Option(None, help="Name of the feasibility mask (default: "
+                                     "feasible when present)."),
+    features_var: str = typer.Option(None, help="Name of the constraint features, m x p "
+                                     "(default: features or theta when present)."),
     overhead: bool = typer.Option(True, help="Add the selectors' own compute time to times."),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
 ):
     """Leave-one-out evaluation of constraint selectors on a score matrix FILE.
 
     Rows are instances, columns constraints, higher scores are better. Without a
-    feasibility mask, entries equal to the matrix minimum count as failures.
+    feasibility mask, entries equal to the matrix minimum count as failures. An array named
+    with --*-var must exist in FILE; a damaged file or pickled objects are refused (exit 2).
     """
     try:
         if file.is_dir():
@@ -184,6 +189,7 @@ def show(
                                    help="Constraint (column) index: plan it and draw the plan."),
     out_path: Path = typer.Option(None, "--out", "-o",
                                   help="PNG to write (default: instance<I>[-constraint<J>].png)."),
+    overwrite: bool = typer.Option(False, help="Replace an existing PNG."),
 ):
     """Render one instance of STORE to a PNG, optionally with a constraint's plan.
 
@@ -205,6 +211,7 @@ def show(
         domain = domain_for(domain_spec(st))
         name = f"instance{instance}" + ("" if constraint is None else f"-constraint{constraint}")
         target = out_path or Path.cwd() / f"{name}.png"
+        check_png_target(target, overwrite)
         if constraint is None:
             domain.render(spec, None, target)
             out.print(f"wrote {target}")
@@ -222,6 +229,8 @@ def show(
         domain.render(spec, plan, target, constraint=theta[constraint])
     except (StoreError, ValueError) as exc:
         _fail(str(exc))
+    except OSError as exc:
+        _fail(f"-o {target}: cannot write there ({exc.strerror or exc})")
     stored = ""
     if st.has("scores/done") and st.done("scores")[instance, constraint]:
         was = bool(st.array("scores/feasible")[instance, constraint])
@@ -231,13 +240,30 @@ def show(
     out.print(f"wrote {target}: {verdict}{stored}, {plan.time * 1e3:.1f} ms", highlight=False)
 
 
+def check_png_target(target: Path, overwrite: bool) -> None:
+    """Refuse a PNG path that is not a .png, exists (without ``overwrite``) or lies in a
+    zarr store."""
+    if target.suffix.lower() != ".png":
+        raise ValueError(f"-o {target}: give a path ending in .png")
+    for folder in target.absolute().parents:
+        if (folder / "zarr.json").is_file():
+            raise ValueError(f"-o {target}: inside the zarr store {folder}; nothing is "
+                             "written into a store")
+    if target.exists() and not (overwrite and target.is_file()):
+        raise ValueError(f"-o {target} exists; pass --overwrite to replace it"
+                         if target.is_file() else f"-o {target} exists and is not a file")
+
+
 @app.command()
 def export(
     store: Path = typer.Argument(..., help=STORE_HELP),
     fmt: str = typer.Option("npz", "--format", "-f", help="npz (one NumPy archive that box "
                             "evaluate reads) or csv (a folder of CSV files plus metadata.json)."),
-    out_path: Path = typer.Option(None, "--out", "-o", help="Where to write (default: next to "
-                                  "the current folder, named after the store)."),
+    out_path: Path = typer.Option(None, "--out", "-o", help="Where to write (default: in "
+                                  "the current folder, named after the store). Never inside "
+                                  "a store."),
+    overwrite: bool = typer.Option(False, help="Replace an existing file, or a folder that "
+                                   "holds a previous csv export."),
 ):
     """Export STORE's score matrix and metadata (npz or csv) for other tools.
 
@@ -247,7 +273,7 @@ def export(
     from pipeline.export import export as write
 
     try:
-        path, complete = write(store, fmt, out_path)
+        path, complete = write(store, fmt, out_path, overwrite=overwrite)
     except (StoreError, ValueError) as exc:
         _fail(str(exc))
     out.print(f"wrote {path}", highlight=False)
