@@ -9,6 +9,9 @@ and no name the user gave is silently replaced by a default.
 from __future__ import annotations
 
 import contextlib
+import faulthandler
+import multiprocessing
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -82,8 +85,7 @@ def _opened(path: Path, suffix: str):
             if not isinstance(archive, np.lib.npyio.NpzFile):
                 raise ValueError("a single .npy array, not an .npz archive")
         else:
-            archive = {k: v for k, v in scipy.io.loadmat(path).items()
-                       if not k.startswith("__")}
+            archive = _read_mat(path)
     except Exception as exc:  # noqa: BLE001 - any parser failure means "cannot read"
         # zipfile, zlib, scipy.io and numpy raise a dozen unrelated types (BadZipFile,
         # MatReadError, EOFError, zlib.error, struct.error, ...) for damaged files.
@@ -93,6 +95,53 @@ def _opened(path: Path, suffix: str):
             yield {name: archive for name in archive.files}  # value: where to read it
     else:
         yield archive
+
+
+def _read_mat(path: Path) -> dict[str, np.ndarray]:
+    """The variables of a MAT-file, read in a child process.
+
+    scipy's MAT reader is not hardened against damaged files: some make it crash the
+    process (a segmentation fault, found by tests/test_fuzz_box_evaluate.py; see scipy's
+    loadmat documentation and scipy PR 25349).  In a child, a crash becomes an error.  The
+    child sends back plain arrays only; a cell array or struct comes back as its dtype.
+    """
+    methods = multiprocessing.get_all_start_methods()
+    ctx = multiprocessing.get_context("fork" if "fork" in methods else "spawn")
+    receive, send = ctx.Pipe(duplex=False)
+    child = ctx.Process(target=_mat_child, args=(str(path), send), daemon=True)
+    child.start()
+    send.close()
+    try:
+        ok, payload = receive.recv()
+    except EOFError:
+        child.join()
+        raise MatCrash(f"the MAT-file reader crashed (exit {child.exitcode}): the file is "
+                       "damaged") from None
+    finally:
+        receive.close()
+    child.join()
+    if not ok:
+        raise MatCrash(payload)
+    return {k: (v if isinstance(v, np.ndarray) else np.empty(0, dtype=v))
+            for k, v in payload.items()}
+
+
+class MatCrash(Exception):
+    """The child reading a MAT-file failed (its message is one line)."""
+
+
+def _mat_child(path: str, send) -> None:
+    faulthandler.disable()  # a crash is reported by the parent in one line
+    os.dup2(os.open(os.devnull, os.O_WRONLY), 2)
+    try:
+        found = {k: np.asarray(v) for k, v in scipy.io.loadmat(path).items()
+                 if not k.startswith("__")}
+        plain = {k: (v if v.dtype.kind in "biuf" else v.dtype.str) for k, v in found.items()}
+        send.send((True, plain))
+    except BaseException as exc:  # noqa: BLE001 - reported to the parent as one line
+        send.send((False, _reason(exc)))
+    finally:
+        send.close()
 
 
 def _pick(path: Path, arrays, role: str, name: str | None) -> str | None:
@@ -126,5 +175,7 @@ def _plain(path: Path, name: str, arrays, suffix: str) -> np.ndarray:
 
 
 def _reason(exc: BaseException) -> str:
+    if isinstance(exc, MatCrash):
+        return str(exc)
     text = str(exc).strip().splitlines()
     return f"{type(exc).__name__}: {text[0]}" if text else type(exc).__name__

@@ -39,19 +39,30 @@ def main(cfg) -> None:
         sys.exit(INTERRUPTED)
 
 
-def override_error(args: list[str]) -> str | None:
-    """One line saying why Hydra cannot compose the config from ``args`` (an unknown key, a
-    value of the wrong type), or None when it can or when ``args`` hold flags (``-m``,
-    ``--cfg``, ...), which Hydra handles itself."""
+def config_error(args: list[str]) -> str | None:
+    """One line saying why the config composed from ``args`` cannot run: Hydra cannot
+    compose it (an unknown key, a value of the wrong type) or a value is refused by
+    :func:`pipeline.validation.validate`.  None when it can run, or when ``args`` hold flags
+    (``-m``, ``--cfg``, ...), which Hydra handles itself (``main`` validates each job).
+
+    Checked before Hydra starts, so a refused command writes nothing, not even Hydra's
+    ``outputs/`` folder."""
     if any(a.startswith("-") for a in args):
         return None
     from hydra import compose, initialize_config_dir
 
+    from pipeline.store import StoreError
+    from pipeline.validation import validate
+
     try:
         with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-            compose(config_name="config", overrides=args)
+            cfg = compose(config_name="config", overrides=args)
     except Exception as exc:  # noqa: BLE001 - Hydra/OmegaConf raise many types; all mean "bad"
         return _one_line(exc)
+    try:
+        validate(cfg)
+    except (StoreError, ValueError) as exc:
+        return str(exc)
     return None
 
 
@@ -75,7 +86,7 @@ def _one_line(exc: Exception) -> str:
 
 
 if __name__ == "__main__":
-    problem = override_error(sys.argv[1:])
+    problem = config_error(sys.argv[1:])
     if problem:
         Console(stderr=True).print(f"[bold red]error:[/] {escape(problem)}", highlight=False,
                                    soft_wrap=True)
