@@ -93,8 +93,8 @@ def check_values(c: dict) -> None:
     _at_least(c, "store.block_constraints", 1)
     workers = c["cluster"]["n_workers"]
     if workers is not None and workers < 1:
-        raise ConfigError(f"cluster.n_workers={workers}: must be >= 1, or null for one per "
-                          "core")
+        raise ConfigError(f"cluster.n_workers must be >= 1, or null for one per core, got "
+                          f"{workers}")
     _at_least(c, "cluster.retries", 0)
     _check_planner_and_domain(c)
     _check_evaluate(c)
@@ -190,7 +190,7 @@ def _selectors(key: str, names, known: set[str]) -> list[str]:
 def _at_least(c: dict, key: str, low: int, why: str = "") -> None:
     value = _get(c, key)
     if value < low:
-        raise ConfigError(f"{key}={value}: must be >= {low}{why}")
+        raise ConfigError(f"{key} must be >= {low}{why}, got {value}")
 
 
 def _get(c: dict, key: str):
