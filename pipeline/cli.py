@@ -134,14 +134,21 @@ def demo(
     if path.suffix != ".npz":
         _fail(f"{path}: the demo writes a NumPy archive; give a path ending in .npz")
     try:
+        _outside_stores(path, "--path")
+    except ValueError as exc:
+        _fail(str(exc))
+    try:
         useful = min(50, m)  # the paper's matrix: about 50 of 162 grasps ever feasible
         data = synthetic.score_matrix(n, m, useful=useful, per_type=min(4, useful), seed=seed)
     except ValueError as exc:
         _fail(str(exc))
     if path.exists() and not overwrite and not _holds(path, data):
         _fail(f"{path} exists and holds a different matrix; pass --overwrite to replace it")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    data.save(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        data.save(path)
+    except OSError as exc:
+        _fail(f"--path {path}: cannot write there ({exc.strerror or exc})")
     out.print(f"wrote {path}: {n} x {m}, {data.feasible.mean():.1%} of entries feasible")
     matrix = MatrixFile(scores=data.scores, times=data.times, feasible=data.feasible,
                         features=data.features)
@@ -241,15 +248,21 @@ def show(
     out.print(f"wrote {target}: {verdict}{stored}, {plan.time * 1e3:.1f} ms", highlight=False)
 
 
+def _outside_stores(path: Path, option: str) -> None:
+    from pipeline.export import enclosing_store
+
+    store = enclosing_store(path)
+    if store is not None:
+        raise ValueError(f"{option} {path}: inside the zarr store {store}; nothing is written "
+                         "into a store")
+
+
 def check_png_target(target: Path, overwrite: bool) -> None:
     """Refuse a PNG path that is not a .png, exists (without ``overwrite``) or lies in a
     zarr store."""
     if target.suffix.lower() != ".png":
         raise ValueError(f"-o {target}: give a path ending in .png")
-    for folder in target.absolute().parents:
-        if (folder / "zarr.json").is_file():
-            raise ValueError(f"-o {target}: inside the zarr store {folder}; nothing is "
-                             "written into a store")
+    _outside_stores(target, "-o")
     if target.exists() and not (overwrite and target.is_file()):
         raise ValueError(f"-o {target} exists; pass --overwrite to replace it"
                          if target.is_file() else f"-o {target} exists and is not a file")

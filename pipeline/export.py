@@ -92,11 +92,10 @@ def export(path, fmt: str, out: Path | None = None, overwrite: bool = False) -> 
 def check_target(out: Path, fmt: str, overwrite: bool) -> None:
     """Refuse ``out`` when it lies in a zarr store or exists (without ``overwrite``, or
     when it is not what this export would replace)."""
-    absolute = out.absolute()
-    for folder in (absolute, *absolute.parents):
-        if (folder / "zarr.json").is_file():
-            raise ValueError(f"-o {out}: inside the zarr store {folder}; exports are never "
-                             "written into a store")
+    store = enclosing_store(out)
+    if store is not None:
+        raise ValueError(f"-o {out}: inside the zarr store {store}; exports are never "
+                         "written into a store")
     if not (out.exists() or out.is_symlink()):
         check_writable_parent(out)
         return
@@ -113,6 +112,15 @@ def check_target(out: Path, fmt: str, overwrite: bool) -> None:
             raise ValueError(f"-o {out} holds files a csv export does not write "
                              f"({', '.join(foreign[:3])}); --overwrite replaces only a "
                              "previous export")
+
+
+def enclosing_store(path: Path) -> Path | None:
+    """The Zarr store (any folder with a ``zarr.json``) that ``path`` is or lies in."""
+    absolute = Path(path).absolute()
+    for folder in (absolute, *absolute.parents):
+        if (folder / "zarr.json").is_file():
+            return folder
+    return None
 
 
 def check_writable_parent(out: Path) -> None:

@@ -200,6 +200,16 @@ def test_export_never_writes_inside_a_store(made, fmt, target):
     assert snapshot(store) == before
 
 
+def test_demo_and_show_never_write_inside_a_store(made, tmp_path):
+    store = made[0]
+    before = snapshot(store)
+    one_line_error(runner.invoke(app, ["demo", "--n", "20", "--m", "5", "--path",
+                                       str(store / "d.npz")]), "inside the zarr store")
+    one_line_error(runner.invoke(app, ["show", str(store), "-i", "0", "-o",
+                                       str(store / "i.png")]), "inside the zarr store")
+    assert snapshot(store) == before
+
+
 # -- row: unwritable -o folder ---------------------------------------------------------------
 def test_export_to_a_folder_that_cannot_be_written(made, tmp_path):
     blocker = tmp_path / "file"
