@@ -94,7 +94,15 @@ def _store_matrix(path: Path) -> MatrixFile:
 def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, seed=0,
                      c=1.96, failure_rule="magnitude", overhead=True, as_json=False) -> None:
     """Run the LOOCV on loaded ``data`` and print its summary (table or JSON)."""
+    from pipeline.validation import available_memory, evaluation_bytes, memory_text
+
     params = {"box": {"c": c}} if "box" in names else {}
+    shape = np.shape(data.scores)
+    if len(shape) == 2:
+        need, have = evaluation_bytes(*shape, len(names)), available_memory()
+        if have is not None and need > have:
+            _fail(f"{file}: evaluating a {shape[0]} x {shape[1]} matrix needs about "
+                  f"{memory_text(need)} of memory, {memory_text(have)} is available")
     try:
         result = box_core.loocv(
             data.scores, times=data.times, feasible=data.feasible, features=data.features,
@@ -103,6 +111,8 @@ def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, 
         )
     except ValueError as exc:
         _fail(f"{file}: {exc}")
+    except MemoryError:
+        _fail(f"{file}: not enough memory to evaluate a {shape} matrix")
     summary = result.summary()
     n, m = data.scores.shape
     if as_json:

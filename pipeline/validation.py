@@ -262,25 +262,27 @@ def check_memory(c: dict, stage: Stage, available: float | None) -> None:
     total = sum(need.bytes for need in coordinator)
     if total > available:
         big = max(coordinator, key=lambda need: need.bytes)
+        lower = big.keys.replace(" x ", " or ").replace(" / ", " or raise ")
         raise ConfigError(
-            f"{_values(c, big.keys)}: stage {stage.value} would hold about {_size(total)} in "
-            f"memory ({big.what}: {_size(big.bytes)}), but {_size(available)} is available; "
-            f"lower {big.keys.replace(' x ', ' or ').replace(' / ', ' or raise ')}")
+            f"{_values(c, big.keys)}: stage {stage.value} would hold about "
+            f"{memory_text(total)} in memory ({big.what}: {memory_text(big.bytes)}), but "
+            f"{memory_text(available)} is available; lower {lower}")
     if worker and c["cluster"]["kind"] == "local":
         workers = c["cluster"]["n_workers"] or os.cpu_count() or 1
         per_worker = available / workers
         for need in worker:
             if need.bytes > per_worker:
                 raise ConfigError(
-                    f"{_values(c, need.keys)}: {need.what} needs about {_size(need.bytes)} in "
-                    f"a worker, but each of {workers} local workers has about "
-                    f"{_size(per_worker)}; lower {need.keys.replace(' x ', ' and ')}")
+                    f"{_values(c, need.keys)}: {need.what} needs about "
+                    f"{memory_text(need.bytes)} in a worker, but each of {workers} local "
+                    f"workers has about "
+                    f"{memory_text(per_worker)}; lower {need.keys.replace(' x ', ' and ')}")
     elif worker:  # remote workers: their memory is unknown here, use this machine's
         for need in worker:
             if need.bytes > available:
                 raise ConfigError(
-                    f"{_values(c, need.keys)}: {need.what} needs about {_size(need.bytes)} "
-                    f"in a worker, more than this machine's {_size(available)}; lower "
+                    f"{_values(c, need.keys)}: {need.what} needs about {memory_text(need.bytes)} "
+                    f"in a worker, more than this machine's {memory_text(available)}; lower "
                     f"{need.keys.replace(' x ', ' and ')}")
 
 
@@ -290,7 +292,7 @@ def _values(c: dict, keys: str) -> str:
     return ", ".join(f"{k}={_get(c, k)}" for k in names)
 
 
-def _size(b: float) -> str:
+def memory_text(b: float) -> str:
     for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
         if b < 1024 or unit == "PiB":
             return f"{b:.3g} {unit}"
@@ -333,5 +335,5 @@ def check_report_stores(paths: list[Path], available: float | None = None) -> No
             n, m = store.array("scores/done").shape
             need = evaluation_bytes(n, m, 2)
             if need > available:
-                raise ConfigError(f"report: {path} ({n} x {m}) needs about {_size(need)} in "
-                                  f"memory, but {_size(available)} is available")
+                raise ConfigError(f"report: {path} ({n} x {m}) needs about {memory_text(need)} in "
+                                  f"memory, but {memory_text(available)} is available")

@@ -142,6 +142,19 @@ def test_a_mat_file_that_crashes_scipys_reader_is_one_line_exit_2(tmp_path):
     bad_input(res, "crashed")
 
 
+def test_a_matrix_too_large_for_memory_is_refused_before_the_evaluation(tmp_path,
+                                                                         monkeypatch):
+    from pipeline import validation
+
+    path = tmp_path / "big.npz"
+    n, m = 1000, 162
+    np.savez(path, scores=np.broadcast_to(-1.0, (n, m)) - np.eye(n, m))
+    need = validation.evaluation_bytes(n, m, 3)
+    monkeypatch.setattr(validation, "available_memory", lambda: need / 2)  # a small machine
+    one_line_error(runner.invoke(app, ["evaluate", str(path)]), str(path), "1000 x 162",
+                   "available")
+
+
 def test_pickled_objects_are_refused_and_never_unpickled(tmp_path, matrix):
     path = tmp_path / "p.npz"
     np.savez(path, scores=np.array([{"a": 1}] * 4, dtype=object), allow_pickle=True)
