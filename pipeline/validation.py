@@ -81,6 +81,9 @@ def validate(cfg, available: float | None = None) -> None:
                           f"sensitivity, renders); add {REPORT_NEEDS}")
     if stage is Stage.report:
         check_report_stores(report_paths(plain))
+    if stage is Stage.all and plain["report"]["stores"]:  # this run evaluates its own store
+        own = run_store(plain)
+        check_report_stores([p for p in report_paths(plain) if p != own])
 
 
 # -- values --------------------------------------------------------------------------------
@@ -303,14 +306,19 @@ def memory_text(b: float) -> str:
 # -- stores a stage reads ------------------------------------------------------------------
 def report_paths(c: dict) -> list[Path]:
     """The stores stage ``report`` reads: report.stores, else this run's store."""
-    from pipeline.store import default_path
-
     stores = c["report"]["stores"]
     if stores:
         return [Path(p).expanduser().absolute() for p in stores]
+    return [run_store(c)]
+
+
+def run_store(c: dict) -> Path:
+    """This run's store (as :class:`pipeline.stages.Run` resolves it)."""
+    from pipeline.store import default_path
+
     path = c["store"]["path"] or default_path(c["domain"]["name"], c["planner"]["name"],
                                               c["seed"])
-    return [Path(path).expanduser().absolute()]
+    return Path(path).expanduser().absolute()
 
 
 def check_report_stores(paths: list[Path], available: float | None = None) -> None:

@@ -27,6 +27,7 @@ from typer.testing import CliRunner
 import box_core
 from box_core.stats import mean_ci
 from pipeline.cli import app
+from pipeline.store import StoreError
 from pipeline.validation import ConfigError, validate
 from tests import pipeline_runs as pr
 
@@ -337,6 +338,15 @@ def test_a_good_config_passes_and_memory_limits_name_the_keys():
         validate(composed("stage=evaluate"), available=50 * 2**20)
     with pytest.raises(ConfigError, match="cluster.n_workers=64"):
         validate(composed(*PLANAR, "cluster.n_workers=64"), available=2**30)
+
+
+def test_stage_all_checks_the_other_stores_it_will_report_on(made, tmp_path):
+    missing = tmp_path / "missing.zarr"
+    with pytest.raises(StoreError, match="no store"):
+        validate(composed(*PLANAR, "stage=all", f"store.path={tmp_path / 'new.zarr'}",
+                          f"report.stores=[{tmp_path / 'new.zarr'},{missing}]"))
+    validate(composed(*PLANAR, "stage=all", f"store.path={tmp_path / 'new.zarr'}",
+                      f"report.stores=[{tmp_path / 'new.zarr'},{made[0]}]"))
 
 
 def run_pipeline(tmp_path, *overrides):
