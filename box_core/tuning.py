@@ -64,7 +64,8 @@ def learning_curve(
     Each repeat draws a random test set (``test_fraction`` of the rows) and, for every
     fraction f, trains on the first f of the remaining rows in a random order (nested:
     a larger fraction adds rows).  Times of the eligible test rows are pooled over repeats;
-    the interval is Student-t over those (repeats share rows, so it is a little narrow).
+    the interval is a percentile bootstrap over those (:mod:`box_core.stats`; repeats share
+    rows, so it is a little narrow).
     """
     D = np.asarray(scores)
     n = D.shape[0]
