@@ -270,23 +270,16 @@ def check_memory(c: dict, stage: Stage, available: float | None) -> None:
             f"{_values(c, big.keys)}: stage {stage.value} would hold about "
             f"{memory_text(total)} in memory ({big.what}: {memory_text(big.bytes)}), but "
             f"{memory_text(available)} is available; lower {lower}")
-    if worker and c["cluster"]["kind"] == "local":
-        workers = c["cluster"]["n_workers"] or os.cpu_count() or 1
-        per_worker = available / workers
-        for need in worker:
-            if need.bytes > per_worker:
-                raise ConfigError(
-                    f"{_values(c, need.keys)}: {need.what} needs about "
-                    f"{memory_text(need.bytes)} in a worker, but each of {workers} local "
-                    f"workers has about "
-                    f"{memory_text(per_worker)}; lower {need.keys.replace(' x ', ' and ')}")
-    elif worker:  # remote workers: their memory is unknown here, use this machine's
-        for need in worker:
-            if need.bytes > available:
-                raise ConfigError(
-                    f"{_values(c, need.keys)}: {need.what} needs about {memory_text(need.bytes)} "
-                    f"in a worker, more than this machine's {memory_text(available)}; lower "
-                    f"{need.keys.replace(' x ', ' and ')}")
+    local = c["cluster"]["kind"] == "local"
+    workers = (c["cluster"]["n_workers"] or os.cpu_count() or 1) if local else 1
+    per_worker = available / workers  # remote workers: unknown here, this machine's memory
+    for need in worker:
+        if need.bytes > per_worker:
+            where = (f"each of {workers} local workers has about {memory_text(per_worker)}"
+                     if local else f"this machine has {memory_text(available)}")
+            raise ConfigError(
+                f"{_values(c, need.keys)}: {need.what} needs about {memory_text(need.bytes)} "
+                f"in a worker, but {where}; lower {need.keys.replace(' x ', ' and ')}")
 
 
 def _values(c: dict, keys: str) -> str:
