@@ -365,7 +365,8 @@ class Eips(Policy):
     try.  After the first feasible plan, the expected improvement of the best score under
     BOX's Gaussian posterior (all tries, failures at the failure value):
     EI_j = s (z Phi(z) + phi(z)), z = (mu_j - best) / s, s the posterior std (EI_j =
-    max(mu_j - best, 0) when s = 0), divided by tau_j.  Ties go to the lowest index.
+    max(mu_j - best, 0) when s = 0 or z >= :data:`Z_LIMIT`, 0 when z <= -Z_LIMIT), divided
+    by tau_j.  Ties go to the lowest index.
     """
 
     defaults = {"prior_rows": 1.0, "mismatch": 0.0}
@@ -379,7 +380,7 @@ class Eips(Policy):
             raise ValueError(f"mismatch must lie in [0, 1), got {mismatch!r}")
         out = ctx.outcomes
         self.a, self.rho = float(prior_rows), float(mismatch)
-        self._F = out.feasible
+        self._FT = np.ascontiguousarray(out.feasible.T)  # (m, n): a column's rows, contiguous
         self._threshold = out.threshold
         # one matrix for both running sums: [feasible | times], (n, 2m)
         self._G = np.hstack([out.feasible.astype(np.float64), out.times])
@@ -387,6 +388,7 @@ class Eips(Policy):
         self._w = np.ones((ctx.size, n))
         own = out.held_out >= 0
         self._w[np.flatnonzero(own), out.held_out[own]] = 0.0
+        self._live = self._w > 0  # rows whose weight can still change
         total = self._G.sum(axis=0)
         self._sums = np.repeat(total[None, :], ctx.size, axis=0)
         self._sums[own] -= self._G[out.held_out[own]]
@@ -406,19 +408,18 @@ class Eips(Policy):
         return p, tau
 
     def propose(self) -> np.ndarray:
-        p, tau = self.expected()
-        gain = p
-        found = np.isfinite(self._best)
-        if found.any():
+        gain, tau = self.expected()
+        found = np.flatnonzero(np.isfinite(self._best))
+        if found.size:
             post = self.posterior
-            mean, std = post.mean[found], post.std()[found]
-            gap = mean - self._best[found, None]
+            std = np.sqrt(np.maximum(post.var[found], 0.0))
+            gap = post.mean[found] - self._best[found, None]
             with np.errstate(divide="ignore", invalid="ignore"):
-                z = np.where(std > 0, gap / std, 0.0)
-            ei = np.where(std > 0, std * (z * ndtr(z) + np.exp(-0.5 * z * z) / _SQRT_2PI),
-                          np.maximum(gap, 0.0))
-            gain = p.copy()
-            gain[found] = ei
+                z = gap / std
+            zc = np.clip(np.nan_to_num(z), -Z_LIMIT, Z_LIMIT)  # no subnormals, no overflow
+            ei = std * (zc * ndtr(zc) + np.exp(-0.5 * zc * zc) / _SQRT_2PI)
+            ei = np.where(z > -Z_LIMIT, ei, 0.0)
+            gain[found] = np.where((std > 0) & (z < Z_LIMIT), ei, np.maximum(gap, 0.0))
         return argmax_untried(gain / tau, self.tried, np.zeros(self.ctx.size))
 
     def update(self, cols: np.ndarray, scores: np.ndarray) -> None:
@@ -426,17 +427,25 @@ class Eips(Policy):
         self.posterior.observe(cols, scores)
         ok = scores > self._threshold
         self._best = np.where(ok, np.maximum(self._best, scores), self._best)
-        differs = (self._F[:, cols].T != ok[:, None]) & (self._w > 0)
-        b, r = np.nonzero(differs)
+        differs = self._FT[cols] != ok[:, None]
+        differs &= self._live
+        b, r = np.divmod(np.flatnonzero(differs), differs.shape[1])
         if b.size:
             change = self._w[b, r] * (self.rho - 1.0)
             self._w[b, r] += change
+            if self.rho == 0.0:
+                self._live[b, r] = False
             delta = sparse.csr_matrix((change, (b, r)), shape=self._w.shape)
             self._sums += delta @ self._G
             self._mass += np.bincount(b, weights=change, minlength=self.ctx.size)
 
 
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
+
+#: EIPS's expected improvement counts as 0 more than Z_LIMIT posterior standard deviations
+#: below the best score, and as the plain gap more than Z_LIMIT above it (what the formula
+#: gives there to double precision), which keeps its arithmetic away from subnormals.
+Z_LIMIT = 30.0
 
 
 def check_selector(name: str, params: dict, *, features, outcomes: bool = True) -> type[Policy]:

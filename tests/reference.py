@@ -172,8 +172,10 @@ def eips_order(train, feasible, times, truth, k, prior_rows=1.0, mismatch=0.0):
             best = max(found)
             gain = np.empty(m)
             for j in range(m):
-                if s[j] > 0:
-                    z = (mean[j] - best) / s[j]
+                z = (mean[j] - best) / s[j] if s[j] > 0 else math.inf
+                if z <= -30:  # box_core's documented cut-off
+                    gain[j] = 0.0
+                elif z < 30:
                     gain[j] = s[j] * (z * 0.5 * math.erfc(-z / math.sqrt(2))
                                       + math.exp(-z * z / 2) / math.sqrt(2 * math.pi))
                 else:
