@@ -21,7 +21,14 @@ from box_core import validation
 from box_core.failure import RULES, fill_failures
 from box_core.failure import failure_value as _failure_value
 from box_core.prior import Prior
-from box_core.selectors import FoldContext, Policy, TrainingOutcomes, check_selector, score_unit
+from box_core.selectors import (
+    FoldContext,
+    Policy,
+    TrainingOutcomes,
+    check_selector,
+    score_unit,
+    standardise,
+)
 from box_core.summary import Summary, summarize
 
 DEFAULT_SELECTORS = ("box", "static", "rand", "doo")
@@ -99,8 +106,8 @@ def loocv(
     its allowed columns.  Every row gets the same number of tries, so ``k`` is capped at m
     minus the largest number of columns hidden from one row.
 
-    Scores are divided by :func:`~box_core.selectors.score_unit` before any selector sees
-    them, so the result is the same for scores in any positive unit.
+    Selectors see the scores through :func:`~box_core.selectors.standardise`, so the result
+    is the same for scores in any positive unit.
     """
     setup = _Setup.check(scores, times, feasible, selectors, k, features, params,
                          failure_rule, min_rows=3, forbidden=forbidden)
@@ -178,7 +185,7 @@ class _Setup:
     """Checked inputs shared by :func:`loocv` and :func:`holdout`."""
 
     D: np.ndarray  # failures filled with the failure value
-    Dn: np.ndarray  # D / score_unit(D): what the selectors see
+    Dn: np.ndarray  # standardise(D, score_unit(D)): what the selectors see
     T: np.ndarray
     feas: np.ndarray
     d: float
@@ -239,8 +246,8 @@ class _Setup:
             feas = validation.boolean_matrix(feasible, D.shape, name="feasible")
             d = _failure_value(D, feas, failure_rule)
             D = fill_failures(D, feas, d)
-        return cls(D=D, Dn=D / score_unit(D), T=T, feas=feas, d=d, theta=theta, names=names,
-                   classes=classes, params=params, k=int(k), forbidden=forbidden)
+        return cls(D=D, Dn=standardise(D, score_unit(D)), T=T, feas=feas, d=d, theta=theta,
+                   names=names, classes=classes, params=params, k=int(k), forbidden=forbidden)
 
     def evaluate(self, fold_priors, fold_outcomes, test, seed, time_grid,
                  measure) -> LoocvResult:

@@ -343,22 +343,29 @@ class Eips(Policy):
     gain per expected second of planning (after Snoek, Larochelle and Adams 2012), for this
     discrete, correlated setting.
 
-    Outcome model: the training rows, weighted by how well they agree with what this
+    Feasibility model: the training rows, weighted by how well they agree with what this
     instance has shown.  Row r starts with weight 1 (0 for a held-out row); each try of
     column j multiplies it by ``mismatch`` when r's feasibility at j differs from the
-    observed one (``mismatch = 0``: only rows with exactly the observed pattern count).
-    With those weights w and ``prior_rows`` = a pseudo-rows at the fold's column means,
+    observed one (``mismatch = 0``: only rows with exactly the observed pattern count; the
+    default 0.1 allows for the planner's own randomness: a sampling planner that runs out of
+    budget on one instance may succeed on a near-identical one).  With those weights w and
+    ``prior_rows`` = a pseudo-rows at the fold's column means pbar,
 
-        p_j   = (sum_r w_r F[r, j] + a pbar_j) / (sum_r w_r + a)    P(feasible at j | tries)
-        tau_j = (sum_r w_r T[r, j] + a tbar_j) / (sum_r w_r + a)    E[time of j | tries]
+        p_j = (sum_r w_r F[r, j] + a pbar_j) / (sum_r w_r + a)     P(feasible at j | tries)
 
-    i.e. the frequencies among past instances that behaved like this one.  Why not the
+    the frequency of success among past instances that behaved like this one.  Why not the
     Gaussian posterior for feasibility: feasibility is binary and mostly failures (98 % of
-    the entries of real grasp matrices), which a Gaussian on scores models poorly, while
-    these conditional frequencies are the exact predictive distribution of the empirical
-    instance distribution; with a tenth of a failure costing what a success costs, the cost
-    model matters as much.  Only rows whose weight changes touch the sums, so a try costs
-    O(changed rows * m) and the whole trace O(n m) at most, besides O(m) per step.
+    the entries of the authors' grasp matrix), which a Gaussian on scores models poorly,
+    while these frequencies are the exact predictive distribution of the empirical instance
+    distribution.  Only rows whose weight changes touch the sums, so a try costs
+    O(m + changed rows * m), the whole trace O((k + n) m) at most.
+
+    Cost model: tau_j = p_j s_j + (1 - p_j) f_j, where s_j and f_j are the mean times of
+    column j's feasible and infeasible training entries (over all training rows; the mean of
+    the whole column where one kind is missing).  Planning times are heavy-tailed (a failure
+    that exhausts the planner's budget costs 1000 times one refuted at IK), so per-instance
+    conditional time averages over the few agreeing rows are too noisy to rank by; the
+    outcome, which the history does predict, is what changes a try's expected cost most.
 
     Gain: while nothing feasible has been found, p_j, so the ratio p_j / tau_j is the
     classic optimal search order for independent tries (Kadane), here re-ranked after every
@@ -369,10 +376,10 @@ class Eips(Policy):
     by tau_j.  Ties go to the lowest index.
     """
 
-    defaults = {"prior_rows": 1.0, "mismatch": 0.0}
+    defaults = {"prior_rows": 1.0, "mismatch": 0.1}
     needs_outcomes = True
 
-    def __init__(self, ctx: FoldContext, prior_rows: float = 1.0, mismatch: float = 0.0):
+    def __init__(self, ctx: FoldContext, prior_rows: float = 1.0, mismatch: float = 0.1):
         super().__init__(ctx)
         if not (math.isfinite(prior_rows) and prior_rows > 0):
             raise ValueError(f"prior_rows must be a finite number > 0, got {prior_rows!r}")
@@ -382,18 +389,30 @@ class Eips(Policy):
         self.a, self.rho = float(prior_rows), float(mismatch)
         self._FT = np.ascontiguousarray(out.feasible.T)  # (m, n): a column's rows, contiguous
         self._threshold = out.threshold
-        # one matrix for both running sums: [feasible | times], (n, 2m)
-        self._G = np.hstack([out.feasible.astype(np.float64), out.times])
-        n = self._G.shape[0]
-        self._w = np.ones((ctx.size, n))
+        F = out.feasible.astype(np.float64)
+        self._Fm = F
+        n = F.shape[0]
         own = out.held_out >= 0
-        self._w[np.flatnonzero(own), out.held_out[own]] = 0.0
+        mine = out.held_out[own]
+        self._w = np.ones((ctx.size, n))
+        self._w[np.flatnonzero(own), mine] = 0.0
         self._live = self._w > 0  # rows whose weight can still change
-        total = self._G.sum(axis=0)
-        self._sums = np.repeat(total[None, :], ctx.size, axis=0)
-        self._sums[own] -= self._G[out.held_out[own]]
+
+        def fold_sums(values):  # column sums over each fold's training rows, (B, m)
+            sums = np.repeat(values.sum(axis=0)[None, :], ctx.size, axis=0)
+            sums[own] -= values[mine]
+            return sums
+
+        self._sums = fold_sums(F)
         self._mass = self._w.sum(axis=1)
-        self._marginal = self._sums / np.maximum(self._mass, 1.0)[:, None]
+        self._pbar = self._sums / np.maximum(self._mass, 1.0)[:, None]
+        ok_n, ok_t = self._sums, fold_sums(out.times * F)
+        all_t = fold_sums(out.times)
+        fail_n = self._mass[:, None] - ok_n
+        mean_t = all_t / np.maximum(self._mass, 1.0)[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            self._t_ok = np.where(ok_n > 0, ok_t / ok_n, mean_t)
+            self._t_fail = np.where(fail_n > 0, (all_t - ok_t) / fail_n, mean_t)
         self._best = np.full(ctx.size, -np.inf)
         self.posterior = GaussianPosterior(ctx.prior, capacity=ctx.horizon or 16)
 
@@ -401,10 +420,9 @@ class Eips(Policy):
 
     def expected(self) -> tuple[np.ndarray, np.ndarray]:
         """(p, tau), each (B, m): probability of feasibility and expected time per column."""
-        m = self.ctx.m
-        both = (self._sums + self.a * self._marginal) / (self._mass + self.a)[:, None]
-        p = np.clip(both[:, :m], 0.0, 1.0)
-        tau = np.maximum(both[:, m:], 1e-12)
+        p = (self._sums + self.a * self._pbar) / (self._mass + self.a)[:, None]
+        p = np.clip(p, 0.0, 1.0)
+        tau = np.maximum(p * self._t_ok + (1.0 - p) * self._t_fail, 1e-12)
         return p, tau
 
     def propose(self) -> np.ndarray:
@@ -436,7 +454,7 @@ class Eips(Policy):
             if self.rho == 0.0:
                 self._live[b, r] = False
             delta = sparse.csr_matrix((change, (b, r)), shape=self._w.shape)
-            self._sums += delta @ self._G
+            self._sums += delta @ self._Fm
             self._mass += np.bincount(b, weights=change, minlength=self.ctx.size)
 
 
@@ -476,14 +494,29 @@ def check_selector(name: str, params: dict, *, features, outcomes: bool = True) 
 
 def score_unit(scores: np.ndarray) -> float:
     """The positive number box_core divides scores by before any arithmetic: the largest
-    magnitude (1 for an all-zero matrix).
-
-    Everything a selector computes is then the same for scores multiplied by any positive
-    factor (orders, ties, times), and no covariance overflows or underflows, whatever the
-    caller's unit (1e-150 ... 1e150).  DOO's lam is consequently in this unit.
-    """
+    magnitude (1 for an all-zero matrix).  See :func:`standardise`."""
     top = float(np.abs(scores).max()) if scores.size else 0.0
     return top if top > 0 and math.isfinite(top) else 1.0
+
+
+#: Standardised scores are rounded to multiples of 2**-GRID_BITS (about 2e-10 of the
+#: largest score): far below any meaningful difference, far above rounding error.
+GRID_BITS = 32
+
+
+def standardise(scores, unit: float) -> np.ndarray:
+    """Scores as every selector sees them: divided by ``unit`` (:func:`score_unit`) and
+    rounded to a fixed grid.
+
+    Dividing makes all arithmetic independent of the caller's unit (no covariance overflows
+    or underflows for scores of 1e150 or 1e-150); rounding removes the last-bit differences
+    that multiplying by a factor leaves, which near-singular conditioning (rank-deficient
+    real matrices) would otherwise amplify into different orders.  So orders, ties and
+    times are the same for scores multiplied by any positive factor.  DOO's lam is in this
+    unit.
+    """
+    scale = float(2**GRID_BITS)
+    return np.round(np.asarray(scores, dtype=np.float64) / unit * scale) / scale
 
 
 class Selector:
@@ -528,7 +561,7 @@ class Selector:
             raise ValueError(f"score must be a finite number, got {score!r}") from None
         if not math.isfinite(score):
             raise ValueError(f"score must be finite, got {score!r}")
-        self._policy.update(np.array([index]), np.array([score / self._unit]))
+        self._policy.update(np.array([index]), standardise(np.array([score]), self._unit))
         self.history.append((index, score))
 
 
@@ -546,7 +579,7 @@ def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores
     """
     D = validation.score_matrix(train_scores, name="train_scores", min_rows=2)
     unit = score_unit(D)
-    D = D / unit
+    D = standardise(D, unit)
     prior = Prior.fit(D)
     if features is not None:
         features = validation.feature_matrix(features, prior.m)
@@ -564,7 +597,8 @@ def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores
     if cls.needs_truth:
         if true_scores is None:
             raise ValueError(f"selector {name!r} needs true_scores (the instance's score row)")
-        truth = validation.score_vector(true_scores, prior.m, name="true_scores")[None, :] / unit
+        truth = standardise(validation.score_vector(true_scores, prior.m, name="true_scores"),
+                            unit)[None, :]
         true_f = truth > outcomes.threshold
         if name == "fastest":
             if true_times is None:

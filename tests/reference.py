@@ -146,9 +146,10 @@ def loocv_orders(D, name, k, seed=0, features=None, **params):
     return np.array(out)
 
 
-def eips_order(train, feasible, times, truth, k, prior_rows=1.0, mismatch=0.0):
+def eips_order(train, feasible, times, truth, k, prior_rows=1.0, mismatch=0.1):
     """EIPS recomputed from scratch at every step: row weights from the whole history,
-    the frequencies p and tau, and eq. 2 by direct solves for the expected improvement."""
+    the frequency p, the outcome-split column mean times, and eq. 2 by direct solves for
+    the expected improvement."""
     mu, S = fit(train)
     oks, fails = train[feasible], train[~feasible]
     if not oks.size or not fails.size:  # everything fails / nothing fails
@@ -158,13 +159,18 @@ def eips_order(train, feasible, times, truth, k, prior_rows=1.0, mismatch=0.0):
     n, m = train.shape
     tried = np.zeros(m, dtype=bool)
     idx, obs = [], []
-    pbar, tbar = feasible.mean(axis=0), times.mean(axis=0)
+    pbar = feasible.mean(axis=0)
+    t_ok, t_fail = np.empty(m), np.empty(m)
+    for j in range(m):
+        ok, fail = times[feasible[:, j], j], times[~feasible[:, j], j]
+        t_ok[j] = ok.mean() if ok.size else times[:, j].mean()
+        t_fail[j] = fail.mean() if fail.size else times[:, j].mean()
     for _ in range(k):
         w = np.ones(n)
         for j, y in zip(idx, obs, strict=True):
             w[feasible[:, j] != (y > threshold)] *= mismatch
         p = (w @ feasible + prior_rows * pbar) / (w.sum() + prior_rows)
-        tau = (w @ times + prior_rows * tbar) / (w.sum() + prior_rows)
+        tau = p * t_ok + (1 - p) * t_fail
         found = [y for y in obs if y > threshold]
         if found:
             mean, var = posterior(mu, S, idx, obs)

@@ -178,7 +178,7 @@ def feasibility_matrix(n, m, seed):
 
 @settings(max_examples=25, deadline=None)
 @given(n=st.integers(6, 40), m=st.integers(2, 25), seed=st.integers(0, 10_000),
-       mismatch=st.sampled_from([0.0, 0.2]), prior_rows=st.sampled_from([0.5, 1.0, 4.0]))
+       mismatch=st.sampled_from([0.0, 0.1, 0.5]), prior_rows=st.sampled_from([0.5, 1.0, 4.0]))
 def test_eips_order_equals_its_direct_implementation(n, m, seed, mismatch, prior_rows):
     D, F, T = feasibility_matrix(n, m, seed)
     train, truth = D[:-1], D[-1]
