@@ -86,11 +86,13 @@ class ClusterConfig:
 @dataclass
 class EvaluateConfig:
     selectors: list[str] = field(
-        default_factory=lambda: ["box", "static", "rand", "doo", "pembo", "oracle",
-                                 "rawplanner"])
+        default_factory=lambda: ["box", "eips", "static", "rand", "doo", "pembo", "oracle",
+                                 "fastest", "rawplanner"])
     k: int | None = None  # tries per held-out instance; null = all m
     c: float = 1.96
     failure_rule: str = "magnitude"
+    # hide from held-out row i the constraints extracted from row i's own raw solution
+    exclude_own_constraints: bool = True
 
 
 @dataclass
@@ -108,7 +110,7 @@ class ReportConfig:
 @dataclass
 class SolveConfig:
     n: int = 20  # fresh instances (seeds never used in the store)
-    selectors: list[str] = field(default_factory=lambda: ["box", "static"])
+    selectors: list[str] = field(default_factory=lambda: ["box", "eips", "static"])
     max_evaluations: int | None = 50  # planning calls per instance and selector; null = m
     max_seconds: float | None = None  # wall-clock budget per instance and selector
     use_incomplete: bool = False  # fit on the completed rows of an unfinished store
