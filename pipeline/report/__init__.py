@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 import box_core
+from box_core.stats import INTERVAL_NOTE
 from pipeline.report import figures
 from pipeline.report.data import StoreResults, load
 from pipeline.report.document import Document
@@ -114,9 +115,7 @@ def make_report(paths, out_dir: Path, settings: dict, say=print) -> dict[str, Pa
     written = {}
     doc.text(f"{len(results)} store(s). Times are seconds of planning (plus each selector's "
              "own compute time in the leave-one-out tables) on the machine that computed the "
-             "store. Intervals are 95 %: Student-t on means (with heavy-tailed times and few "
-             "instances the lower end can fall below zero; figures then draw the bar to the "
-             "axis), paired bootstrap on ratios.")
+             f"store. 95 % intervals. {INTERVAL_NOTE}")
     doc.heading("Datasets")
     doc.table(*_dataset_rows(results))
 

@@ -161,8 +161,8 @@ def learning_curves(results, curves, out_dir: Path, formats) -> dict[str, Path]:
 
 
 def _positive_errors(mean, low, high):
-    """Error bar lengths for a log axis: a Student-t lower end at or below zero (heavy
-    tails, few rows) is drawn down to the axis."""
+    """Error bar lengths for a log axis: a lower end at zero is drawn down to the axis, and a
+    missing end (a single row) draws no bar on that side."""
     mean, low, high = (np.asarray(v, dtype=np.float64) for v in (mean, low, high))
     low = np.where(np.isnan(low), mean, low)
     high = np.where(np.isnan(high), mean, high)
