@@ -19,7 +19,7 @@ BAD_INPUT, FAILED, INTERRUPTED = 2, 1, 130
 def main(cfg) -> None:
     from pipeline.execution import TaskFailed
     from pipeline.stages import run_pipeline
-    from pipeline.store import StoreError
+    from pipeline.store import StoreDamaged, StoreError
 
     console = Console(width=None if sys.stdout.isatty() else 132)
     err = Console(stderr=True)
@@ -28,6 +28,9 @@ def main(cfg) -> None:
     except (StoreError, ValueError) as exc:
         err.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
         sys.exit(BAD_INPUT)
+    except StoreDamaged as exc:
+        err.print(f"[bold red]damaged:[/] {exc}", highlight=False, soft_wrap=True)
+        sys.exit(FAILED)
     except TaskFailed as exc:
         err.print(f"[bold red]failed:[/] {exc}", highlight=False, soft_wrap=True)
         sys.exit(FAILED)
