@@ -203,8 +203,9 @@ class Run:
         ok = set(finished) - damage.blocks
         return [b for b in np.ndindex(*store.grid(group)) if b not in ok], damage
 
-    def _pending(self, group: str) -> list[tuple[int, ...]]:
-        """Blocks of ``group`` to compute; damaged finished ones are un-marked first."""
+    def _pending(self, group: str, coords: dict) -> list[tuple[int, ...]]:
+        """Blocks of ``group`` to compute; damaged finished ones are un-marked first (and
+        the coordinates, derived from other groups, written again)."""
         changed = self.changed_inputs(group)
         if changed:
             self.say(f"[yellow]{group}: its inputs changed since it ran "
@@ -217,6 +218,8 @@ class Run:
                      f"({damage.describe()}); recomputing them")
             self.store.forget_blocks(group, sorted(damage.blocks))
             self.store.forget_stage(group)
+            names = [n for n in self.store.layout(group).names if n not in coords]
+            self.store.write_coords(group, coords, names)
         return sorted(pending)
 
     def _run_blocks(self, group: str, tasks: list[Task], label: str) -> Counter:
@@ -245,11 +248,7 @@ def todo_whole(run: Run, stage: str, group: str) -> str | None:
     changed = run.changed_inputs(stage)
     if changed:
         return f"its inputs changed ({', '.join(changed)})"
-    if store.has_table(group):
-        unrecorded = len(store.finished_blocks(group)) < int(np.prod(store.grid(group)))
-        if unrecorded:
-            return "blocks without integrity records"
-    damage = store.verify(group)
+    damage = store.verify(group, expect_all=True)
     return f"damaged: {damage.describe()}" if damage else None
 
 
@@ -311,7 +310,7 @@ def _write_whole(run: Run, group: str, arrays: dict[str, np.ndarray], make) -> N
         return
     layout = store.layout(group)
     table = store.array(f"integrity/{group}")
-    damaged = store.verify(group).blocks
+    damaged = store.verify(group, expect_all=True).blocks
     for block in np.ndindex(*store.grid(group)):
         try:
             row = table.blocks[(*block, 0)].reshape(-1)
@@ -375,16 +374,16 @@ def stage_raw(run: Run) -> None:
     if TODO["raw"](run) is None:
         run.say("raw: already complete; nothing to do")
         return
+    p = run.domain.n_features
+    coords = {**instance_coord(store.array("instances/seed")[...]),
+              **feature_coord(feature_names(run.domain, p))}
     if not store.has_table("raw"):
-        p = run.domain.n_features
         extra = [("tries", (n,), (b,), "int32", 0, ("instance",), {}),
                  ("constraint", (n, p), (b, p), "float64", np.nan, ("instance", "feature"),
                   {"description": "constraint extracted from the raw solution (NaN: none)"})]
-        coords = {**instance_coord(store.array("instances/seed")[...]),
-                  **feature_coord(feature_names(run.domain, p))}
         store.create_results("raw", (n,), (b,), ("instance",), run.domain.steps, extra,
                              coords)
-    pending = run._pending("raw")
+    pending = run._pending("raw", coords)
     store.forget_stage("raw")
     specs, seeds = _inputs(run)
     tasks = []
@@ -457,12 +456,12 @@ def stage_scores(run: Run) -> None:
     if TODO["scores"](run) is None:
         run.say(f"scores: already complete ({n} x {m}); nothing to do")
         return
+    coords = {**instance_coord(store.array("instances/seed")[...]),
+              **source_coord(store.array("constraints/source_instance")[...])}
     if not store.has_table("scores"):
-        coords = {**instance_coord(store.array("instances/seed")[...]),
-                  **source_coord(store.array("constraints/source_instance")[...])}
         store.create_results("scores", (n, m), (bi, bj), ("instance", "constraint"),
                              run.domain.steps, coords=coords)
-    pending = run._pending("scores")
+    pending = run._pending("scores", coords)
     store.forget_stage("scores")
     specs, seeds = _inputs(run)
     theta = store.array("constraints/theta")[...]

@@ -3,6 +3,7 @@ every damage found (read-only: works on stores that cannot be written)."""
 
 from __future__ import annotations
 
+import numpy as np
 from rich.console import Console
 from rich.table import Table
 
@@ -17,7 +18,8 @@ STAGE_GROUPS = {"instances": "instances", "raw": "raw", "constraints": "constrai
 def _damage(store: ScoreStore, stage: str, group: str) -> Damage:
     if group in BLOCK_DIMS:
         if store.has_table(group) or store.has_group(group):
-            return store.verify(group)
+            whole = not store.has(f"{group}/done")  # instances, constraints
+            return store.verify(group, expect_all=whole and store.stage_info(stage) is not None)
         return Damage()
     outputs = (store.stage_info(stage) or {}).get("outputs")
     if outputs is not None:
@@ -38,7 +40,10 @@ def collect(path) -> dict:
         info = attrs.get("stages", {}).get(stage)
         entry = {"finished": info.get("finished") if info else None}
         if store.has(f"{group}/done"):
-            done = store.done(group)
+            try:
+                done = store.done(group)
+            except Exception:  # noqa: BLE001 (a damaged mask: reported below)
+                done = np.zeros(store.array(f"{group}/done").shape, dtype=bool)
             entry["done"], entry["total"] = int(done.sum()), int(done.size)
         report["stages"][stage] = entry
         found = _damage(store, stage, group)

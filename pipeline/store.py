@@ -399,8 +399,10 @@ class ScoreStore:
                 out.append(block)
         return out
 
-    def verify(self, group: str, blocks=None) -> Damage:
-        """Damage in the recorded ``blocks`` (default: all finished) of ``group``."""
+    def verify(self, group: str, blocks=None, expect_all: bool = False) -> Damage:
+        """Damage in the recorded ``blocks`` (default: all) of ``group``.  A block without a
+        readable record counts as damage of the record when the block should have one:
+        its ``done`` mask says so, or ``expect_all`` (a finished group written whole)."""
         damage = Damage()
         if not self.has_table(group):
             return self._verify_decoding(group)
@@ -408,15 +410,19 @@ class ScoreStore:
         table = self.array(table_key)
         layout = self.layout(group)
         written = {name: self.chunk_keys(f"{group}/{name}") for name in layout.names}
+        done = self._done_blocks(group) if not expect_all else None
         if blocks is None:
             blocks = list(np.ndindex(*table.shape[:-1]))
         for block in blocks:
+            expected = expect_all or (done is not None and block in done)
             try:
                 row = table.blocks[(*block, 0)].reshape(-1)
             except Exception:  # noqa: BLE001
                 damage.add("corrupted", table_key, block)
                 continue
             if not np.all(row != integrity.NOT_RECORDED):
+                if expected:
+                    damage.add("missing", table_key, block)
                 continue  # not finished: nothing to verify
             for k, name in enumerate(layout.names):
                 arr, chunk = self._chunk(layout, name, block)
@@ -432,6 +438,20 @@ class ScoreStore:
                 if digest(values) != int(row[k]):
                     damage.add("corrupted", key, block)
         return damage
+
+    def _done_blocks(self, group: str) -> set:
+        """Blocks whose ``done`` mask is all set (that mask's own damage aside)."""
+        if not self.has(f"{group}/done"):
+            return set()
+        mask = self.array(f"{group}/done")
+        out = set()
+        for block in np.ndindex(*mask.cdata_shape):
+            try:
+                if mask.blocks[block].all():
+                    out.add(block)
+            except Exception:  # noqa: BLE001 (found as damage of done itself)
+                continue
+        return out
 
     def _verify_decoding(self, group: str) -> Damage:
         """Layout 1 (no integrity table): chunks of finished blocks must decode."""
