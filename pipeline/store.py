@@ -170,8 +170,7 @@ class ScoreStore:
 
         The caller holds the :class:`StoreLock`.  A store with a different identity is
         refused with the differing keys named, or replaced when ``overwrite``; anything
-        that is not a store of ours is refused and never modified.  A store of an older
-        layout is brought to the current one.
+        that is not a store of ours is refused and never modified.
         """
         from pipeline.configs import config_hash, differing_keys
 
@@ -181,11 +180,7 @@ class ScoreStore:
             store = cls(location)
             stored = store.attrs.get("identity")
             if stored == identity:
-                if store.layout_version < LAYOUT_VERSION:
-                    from pipeline.migrate import migrate
-
-                    migrate(store)
-                return store
+                return store  # the caller migrates an older layout (pipeline/migrate.py)
             if not overwrite:
                 keys = differing_keys(stored or {}, identity)
                 raise StoreError(

@@ -21,6 +21,13 @@ def _snapshot(root: Path) -> dict:
             if p.is_file()}
 
 
+def _ours(stderr: str) -> list[str]:
+    """The lines of ``stderr`` that the pipeline wrote (pybullet's C library announces
+    itself on import; Dask workers log the tasks cancelled when a run stops)."""
+    return [line for line in stderr.strip().splitlines()
+            if not line.startswith("pybullet build time") and " - distributed." not in line]
+
+
 def _read_only(root: Path) -> None:
     for p in [root, *root.rglob("*")]:
         p.chmod(p.stat().st_mode & ~(stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH))
@@ -46,8 +53,9 @@ def open_dir():
     """A folder every user may read (pytest's tmp_path is private to root)."""
     path = Path(tempfile.mkdtemp(prefix="box-ro-"))
     path.chmod(0o755)
-    (path / "cwd").mkdir()
-    (path / "cwd").chmod(0o777)  # Hydra's output folder lands here
+    for cwd in ("cwd", "cwd-nobody"):  # Hydra's output folders land here
+        (path / cwd).mkdir()
+        (path / cwd).chmod(0o777)
     yield path
     for p in [path, *path.rglob("*")]:
         p.chmod(p.stat().st_mode | stat.S_IWUSR)
@@ -65,7 +73,7 @@ def test_rerunning_a_finished_read_only_store_writes_nothing(made, open_dir):
         assert "already complete" in res.stdout and "dask:" not in res.stdout
     assert _snapshot(copy) == before
     assert not (open_dir / "ro.zarr.lock").exists()
-    res = _as_nobody(pr.command(copy, "stage=generate"), open_dir / "cwd")
+    res = _as_nobody(pr.command(copy, "stage=generate"), open_dir / "cwd-nobody")
     assert res.returncode == 0, res.stderr
     assert "scores: already complete" in res.stdout
     assert _snapshot(copy) == before
@@ -79,10 +87,10 @@ def test_a_damaged_read_only_store_ends_with_one_line(made, open_dir):
     _read_only(copy)
     open_dir.chmod(0o555)  # not even the lock file can be made
     before = _snapshot(copy)
-    res = _as_nobody(pr.command(copy, "stage=generate"), open_dir / "cwd")
+    res = _as_nobody(pr.command(copy, "stage=generate"), open_dir / "cwd-nobody")
     assert res.returncode == 2, res.stdout + res.stderr
     assert "read-only" in res.stderr and "Traceback" not in res.stderr
-    assert len(res.stderr.strip().splitlines()) == 1, res.stderr
+    assert len(_ours(res.stderr)) == 1, res.stderr
     assert _snapshot(copy) == before
     open_dir.chmod(0o755)
 
@@ -99,7 +107,7 @@ def test_a_full_disk_ends_with_one_line_and_resumes_later(made, tmp_path):
         res = pr.run(store, "stage=generate", cwd=tmp_path)
         assert res.returncode == 2, res.stdout + res.stderr
         assert "no space left on the device" in res.stderr
-        assert "Traceback" not in res.stderr
+        assert len(_ours(res.stderr)) == 1, res.stderr
         subprocess.run(["mount", "-o", "remount,size=32m", str(disk)], check=True)
         res = pr.run(store, "stage=generate", cwd=tmp_path)
         assert res.returncode == 0, res.stdout + res.stderr
