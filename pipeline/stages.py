@@ -94,6 +94,7 @@ class Run:
         self.store: ScoreStore | None = None
         self.writing = False
         self.wrote = False
+        self._todo: dict[str, str | None] = {}
         self._stack = contextlib.ExitStack()
         self._client = None
 
@@ -175,6 +176,13 @@ class Run:
                              f"(run stage={stage}, or stage=generate for all of them)")
 
     # -- what changed ------------------------------------------------------------------------
+    def todo(self, stage: str) -> str | None:
+        """Why ``stage`` must run, or None (checked once per stage and run: the read-only
+        check that decided to take the lock is not repeated)."""
+        if stage not in self._todo:
+            self._todo[stage] = TODO[stage](self)
+        return self._todo.pop(stage) if self.writing else self._todo[stage]
+
     def changed_inputs(self, stage: str) -> list[str]:
         """Inputs of ``stage`` whose digests differ from those it recorded."""
         recorded = (self.store.stage_info(stage) or {}).get("inputs")
@@ -338,7 +346,7 @@ def _write_whole(run: Run, group: str, arrays: dict[str, np.ndarray], make) -> N
 
 def stage_instances(run: Run) -> None:
     store, n = run.store, run.cfg.instances.n
-    reason = TODO["instances"](run)
+    reason = run.todo("instances")
     if reason is None:
         run.say(f"instances: already complete ({n} instances); nothing to do")
         return
@@ -371,7 +379,7 @@ def _inputs(run: Run):
 def stage_raw(run: Run) -> None:
     run.require("instances", "raw")
     store, n, b = run.store, run.cfg.instances.n, run.cfg.store.block_instances
-    if TODO["raw"](run) is None:
+    if run.todo("raw") is None:
         run.say("raw: already complete; nothing to do")
         return
     p = run.domain.n_features
@@ -402,7 +410,7 @@ def stage_raw(run: Run) -> None:
 
 def stage_constraints(run: Run) -> None:
     store = run.store
-    reason = TODO["constraints"](run)
+    reason = run.todo("constraints")
     if reason is None:
         run.say(f"constraints: already complete "
                 f"({store.stage_info('constraints')['m']} constraints); nothing to do")
@@ -453,7 +461,7 @@ def stage_scores(run: Run) -> None:
     store = run.store
     n, m = run.cfg.instances.n, store.stage_info("constraints")["m"]
     bi, bj = run.cfg.store.block_instances, run.cfg.store.block_constraints
-    if TODO["scores"](run) is None:
+    if run.todo("scores") is None:
         run.say(f"scores: already complete ({n} x {m}); nothing to do")
         return
     coords = {**instance_coord(store.array("instances/seed")[...]),
@@ -488,7 +496,7 @@ def stage_evaluate(run: Run) -> None:
 
     run.require("scores", "evaluate")
     store = run.store
-    reason = TODO["evaluate"](run)
+    reason = run.todo("evaluate")
     if reason is not None and store.stage_info("evaluate") is not None:
         run.say(f"evaluate: running again: {reason}")
     if reason is not None:
@@ -582,7 +590,7 @@ def _write_stages(run: Run, names) -> None:
     run.open_for_reading()
     try:
         for name in names:
-            if not run.writing and TODO[name](run) is not None:
+            if not run.writing and run.todo(name) is not None:
                 run.open_for_writing()
                 run.say(f"store: {run.path} (config {run.store.attrs['config_hash']})")
             if not run.writing and name == "evaluate":
