@@ -310,7 +310,7 @@ def _write_whole(run: Run, group: str, arrays: dict[str, np.ndarray], make) -> N
     """
     store = run.store
     if not store.has_table(group) or store.stage_info(group) is None \
-            or run.changed_inputs(group):
+            or run.changed_inputs(group) or store.missing_arrays(group):
         make()
         for name, values in arrays.items():
             store.array(f"{group}/{name}")[...] = values
@@ -385,7 +385,7 @@ def stage_raw(run: Run) -> None:
     p = run.domain.n_features
     coords = {**instance_coord(store.array("instances/seed")[...]),
               **feature_coord(feature_names(run.domain, p))}
-    if not store.has_table("raw"):
+    if not store.has_table("raw") or store.missing_arrays("raw"):
         extra = [("tries", (n,), (b,), "int32", 0, ("instance",), {}),
                  ("constraint", (n, p), (b, p), "float64", np.nan, ("instance", "feature"),
                   {"description": "constraint extracted from the raw solution (NaN: none)"})]
@@ -466,7 +466,7 @@ def stage_scores(run: Run) -> None:
         return
     coords = {**instance_coord(store.array("instances/seed")[...]),
               **source_coord(store.array("constraints/source_instance")[...])}
-    if not store.has_table("scores"):
+    if not store.has_table("scores") or store.missing_arrays("scores"):
         store.create_results("scores", (n, m), (bi, bj), ("instance", "constraint"),
                              run.domain.steps, coords=coords)
     pending = run._pending("scores", coords)

@@ -17,6 +17,11 @@ STAGE_GROUPS = {"instances": "instances", "raw": "raw", "constraints": "constrai
 
 def _damage(store: ScoreStore, stage: str, group: str) -> Damage:
     if group in BLOCK_DIMS:
+        if not store.has_table(group) and store.layout_version >= 2 \
+                and store.stage_info(stage) is not None:
+            damage = Damage()
+            damage.add("missing", f"{integrity.GROUP}/{group}", ())
+            return damage
         if store.has_table(group) or store.has_group(group):
             whole = not store.has(f"{group}/done")  # instances, constraints
             return store.verify(group, expect_all=whole and store.stage_info(stage) is not None)

@@ -404,7 +404,9 @@ class ScoreStore:
         table_key = f"{integrity.GROUP}/{group}"
         table = self.array(table_key)
         layout = self.layout(group)
-        written = {name: self.chunk_keys(f"{group}/{name}") for name in layout.names}
+        gone = set(self.missing_arrays(group))
+        written = {name: self.chunk_keys(f"{group}/{name}") for name in layout.names
+                   if name not in gone}
         done = self._done_blocks(group) if not expect_all else None
         if blocks is None:
             blocks = list(np.ndindex(*table.shape[:-1]))
@@ -420,8 +422,11 @@ class ScoreStore:
                     damage.add("missing", table_key, block)
                 continue  # not finished: nothing to verify
             for k, name in enumerate(layout.names):
-                arr, chunk = self._chunk(layout, name, block)
                 key = f"{group}/{name}"
+                if name in gone:
+                    damage.add("missing", key, block)
+                    continue
+                arr, chunk = self._chunk(layout, name, block)
                 if arr.metadata.encode_chunk_key(chunk) not in written[name]:
                     damage.add("missing", key, block)
                     continue
@@ -434,10 +439,14 @@ class ScoreStore:
                     damage.add("corrupted", key, block)
         return damage
 
+    def missing_arrays(self, group: str) -> list[str]:
+        """Arrays that the integrity table of ``group`` covers but that are gone."""
+        return [name for name in self.layout(group).names if not self.has(f"{group}/{name}")]
+
     def _done_blocks(self, group: str) -> set:
         """Blocks whose ``done`` mask is all set (that mask's own damage aside)."""
         if not self.has(f"{group}/done"):
-            return set()
+            return set(np.ndindex(*self.grid(group)))  # the mask is gone: all were done
         mask = self.array(f"{group}/done")
         out = set()
         for block in np.ndindex(*mask.cdata_shape):
