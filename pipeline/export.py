@@ -54,7 +54,10 @@ def export(path, fmt: str, out: Path | None = None) -> tuple[Path, bool]:
     """Write the store at ``path`` as ``fmt``; return (what was written, complete?)."""
     if fmt not in FORMATS:
         raise ValueError(f"unknown format {fmt!r}; choose {' or '.join(FORMATS)}")
+    from pipeline.status import refuse_damaged
+
     store = ScoreStore.open(path)
+    refuse_damaged(store)
     arrays = _arrays(store)
     meta = metadata(store, arrays)
     stem = store.path.name.removesuffix(".zarr")

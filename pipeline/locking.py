@@ -89,12 +89,13 @@ class LeaseLock:
         self.fs, self.key = location.sibling(LOCK_SUFFIX).filesystem()
         self.lease_seconds = lease_seconds
         self.token = uuid.uuid4().hex
+        self.since = _now()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
     def _lease(self) -> bytes:
         return json.dumps({"owner": self.token, "host": socket.gethostname(),
-                           "pid": os.getpid(), "since": _now(),
+                           "pid": os.getpid(), "since": self.since,
                            "heartbeat": time.time()}).encode()
 
     def _read(self) -> dict | None:

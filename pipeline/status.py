@@ -9,7 +9,7 @@ from rich.table import Table
 
 from pipeline import integrity
 from pipeline.integrity import Damage
-from pipeline.store import BLOCK_DIMS, ScoreStore, StoreLock
+from pipeline.store import BLOCK_DIMS, ScoreStore, StoreError, StoreLock
 
 STAGE_GROUPS = {"instances": "instances", "raw": "raw", "constraints": "constraints",
                 "scores": "scores", "evaluate": "evaluation"}
@@ -30,6 +30,16 @@ def _damage(store: ScoreStore, stage: str, group: str) -> Damage:
     if outputs is not None:
         return store.verify_whole(outputs)
     return store._verify_decoding(group)  # noqa: SLF001 (an evaluation of layout 1)
+
+
+def refuse_damaged(store: ScoreStore, stages=("instances", "constraints", "scores")) -> None:
+    """Raise StoreError naming the damaged arrays of ``stages`` (for readers such as
+    ``box export`` that must not hand damaged values on)."""
+    found = [_damage(store, stage, STAGE_GROUPS[stage]) for stage in stages]
+    named = "; ".join(d.describe() for d in found if d)
+    if named:
+        raise StoreError(f"store {store.path} is damaged: {named}; re-run the pipeline "
+                         "command that made it to repair it (box status shows the damage)")
 
 
 def collect(path) -> dict:

@@ -61,6 +61,8 @@ def test_damage_in_every_group_is_named_then_repaired(made, tmp_path, damage, ch
     for chunk in chunks:
         (_flip if damage == "flip" else (lambda p: p.unlink()))(copy / chunk)
     box_code, named, stage_code, stage_out = _statuses(copy)
+    exported = runner.invoke(app, ["export", str(copy), "-o", str(tmp_path / "x.npz")])
+    assert exported.exit_code == 2 and "is damaged" in exported.output
     expected = {_array(c) for c in chunks}
     assert box_code == 1 and stage_code == 1
     assert named == expected  # every damaged array, and nothing else
