@@ -30,7 +30,7 @@ from pipeline.store import ScoreStore
 def compose_cfg(store: Path, overrides: list[str]):
     with initialize_config_dir(config_dir=str(configs.CONF_DIR), version_base="1.3"):
         return compose(config_name="config", overrides=[f"store.path={store}", "progress=false",
-                                                        *overrides])
+                                                        "domain=planar", *overrides])
 
 
 def prepared(store: Path, overrides: list[str], console: Console) -> None:
