@@ -20,7 +20,7 @@ BAD_INPUT, FAILED, INTERRUPTED = 2, 1, 130
 def main(cfg) -> None:
     from pipeline.execution import TaskFailed
     from pipeline.stages import run_pipeline
-    from pipeline.store import StoreError
+    from pipeline.store import StoreDamaged, StoreError
     from pipeline.validation import validate
 
     console = Console(width=None if sys.stdout.isatty() else 132)
@@ -31,6 +31,9 @@ def main(cfg) -> None:
     except (StoreError, ValueError) as exc:
         err.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
         sys.exit(BAD_INPUT)
+    except StoreDamaged as exc:
+        err.print(f"[bold red]damaged:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
+        sys.exit(FAILED)
     except TaskFailed as exc:
         err.print(f"[bold red]failed:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
         sys.exit(FAILED)

@@ -177,15 +177,17 @@ def _holds(path: Path, data: synthetic.SyntheticData) -> bool:
 
 
 STORE_HELP = "A score store (.zarr folder) made by python -m pipeline."
+STORE_URL_HELP = STORE_HELP + " A URL (s3://bucket/x.zarr, file:///...) works too."
 
 
 @app.command()
-def status(store: Path = typer.Argument(..., help=STORE_HELP),
+def status(store: str = typer.Argument(..., help=STORE_URL_HELP),
            as_json: bool = typer.Option(False, "--json", help="Print the status as JSON.")):
     """Show what STORE holds: stages, completion, corrupted chunks.
 
-    Exit code 0 when every chunk reads back, 1 when some are corrupted (re-running the
-    stage recomputes them), 2 when STORE is missing or not a store of this pipeline.
+    Exit code 0 when every chunk reads back as recorded, 1 when some are corrupted or
+    missing (re-running the stage recomputes them), 2 when STORE is missing or not a store
+    of this pipeline.
     """
     from pipeline.status import collect, print_status
 
@@ -195,7 +197,7 @@ def status(store: Path = typer.Argument(..., help=STORE_HELP),
         _fail(str(exc))
     if as_json:
         typer.echo(json.dumps(report, indent=2))
-    if any(a["corrupted"] for a in report["arrays"]):
+    if report["damaged"]:
         raise typer.Exit(1)
 
 
@@ -280,7 +282,7 @@ def check_png_target(target: Path, overwrite: bool) -> None:
 
 @app.command()
 def export(
-    store: Path = typer.Argument(..., help=STORE_HELP),
+    store: str = typer.Argument(..., help=STORE_URL_HELP),
     fmt: str = typer.Option("npz", "--format", "-f", help="npz (one NumPy archive that box "
                             "evaluate reads) or csv (a folder of CSV files plus metadata.json)."),
     out_path: Path = typer.Option(None, "--out", "-o", help="Where to write (default: in "

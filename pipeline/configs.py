@@ -63,6 +63,8 @@ class StoreConfig:
     mode: StoreMode = StoreMode.resume
     block_instances: int = 25  # a task computes one block = one chunk of every score array
     block_constraints: int = 60
+    #: passed to the fsspec filesystem of a URL store.path (endpoint_url, key, secret, ...)
+    storage_options: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass

@@ -66,7 +66,10 @@ def export(path, fmt: str, out: Path | None = None, overwrite: bool = False) -> 
     """
     if fmt not in FORMATS:
         raise ValueError(f"unknown format {fmt!r}; choose {' or '.join(FORMATS)}")
+    from pipeline.status import refuse_damaged
+
     store = ScoreStore.open(path)
+    refuse_damaged(store)
     stem = store.path.name.removesuffix(".zarr")
     default = f"{stem}.npz" if fmt == "npz" else f"{stem}-csv"
     out = Path(out).expanduser() if out else Path.cwd() / default
