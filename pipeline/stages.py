@@ -312,6 +312,8 @@ def run_pipeline(cfg, console: Console) -> None:
     try:
         writing = plan_stages(stage)
         if writing:
+            if {"raw", "scores"} & set(writing):
+                _ = run.client  # connect (or start) the cluster first: a failure writes nothing
             run.open_for_writing()
             run.say(f"store: {run.path} (config {run.store.attrs['config_hash']})")
             for name in writing:
