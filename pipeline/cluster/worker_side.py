@@ -72,6 +72,9 @@ class WorkerTuning(NannyPlugin):
             nanny.env.pop(key, None)
             nanny.pre_spawn_env.pop(key, None)
         nanny.config = dask.config.merge(nanny.config, _nested(TUNED_CONFIG))
+        if getattr(nanny, "process", None) is not None:  # a restart reuses its config copy
+            nanny.process.config = dask.config.merge(nanny.process.config,
+                                                     _nested(TUNED_CONFIG))
         self.restart = bool(stale)
 
 
