@@ -84,7 +84,7 @@ def dask_procs(tmp_path):
         procs.close()
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def local_reference(tmp_path_factory):
     """D of the small planar run on a LocalCluster: what every cluster must reproduce."""
     store = tmp_path_factory.mktemp("reference") / "local.zarr"
