@@ -35,11 +35,14 @@ if ip netns list 2>/dev/null | grep -qw "$NS" && [ -s /run/slurmctld.pid ] \
 fi
 
 if ! command -v slurmctld >/dev/null || ! command -v slurmd >/dev/null \
-   || ! command -v sbatch >/dev/null || ! command -v munged >/dev/null; then
+   || ! command -v sbatch >/dev/null || ! command -v munged >/dev/null \
+   || ! command -v ip >/dev/null || ! command -v nsenter >/dev/null; then
+  command -v apt-get >/dev/null || cannot "no apt-get to install Debian's SLURM packages"
   export DEBIAN_FRONTEND=noninteractive
   apt-get update -qq >/dev/null || cannot "apt-get update failed"
   apt-get install -y -qq --no-install-recommends slurmctld slurmd slurm-client munge \
-    >/dev/null || cannot "apt-get install slurmctld slurmd slurm-client munge failed"
+    iproute2 util-linux >/dev/null \
+    || cannot "apt-get install slurmctld slurmd slurm-client munge iproute2 failed"
 fi
 
 stop  # a half-started earlier attempt

@@ -80,7 +80,7 @@ def _describe(cfg, client, n: int) -> str:
     if cfg.kind is ClusterKind.slurm:
         return (f"{n} of {cfg.n_workers or 1} SLURM workers connected (the rest join as their "
                 f"jobs start) at {where}{board}")
-    return f"{n} workers at {where}{board}"
+    return f"{n} worker{'' if n == 1 else 's'} at {where}{board}"
 
 
 #: cluster.reuse: the clients kept open for the next run in this process, by settings.

@@ -3,12 +3,15 @@ inside a private network namespace with loopback only."""
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import subprocess
+import sys
 import time
 from pathlib import Path
 
 import pytest
+import zarr
 
 from tests import pipeline_runs as pr
 
@@ -96,3 +99,24 @@ def test_all_jobs_cancelled_watchdog_stops_the_run(slurm, tmp_path):
     assert "no Dask worker connected for 5 s (cluster.worker_timeout)" in out
     assert "re-run the same command to resume" in out
     assert pr.done_count(store) > 0
+
+
+def test_submitit_sweep_sizes_local_clusters_by_the_allocation(slurm, tmp_path):
+    """Hydra's submitit launcher runs each sweep job as a SLURM job of one CPU: its local
+    cluster gets one worker (the allocation), not one per core of the machine."""
+    if importlib.util.find_spec("hydra_plugins.hydra_submitit_launcher") is None:
+        pytest.skip('needs hydra-submitit-launcher: pip install -e ".[sweeps]"')
+    store = f"store.path={tmp_path}/s${{seed}}.zarr"
+    res = subprocess.run(
+        [*IN_NS, sys.executable, "-m", "pipeline", "-m", "hydra/launcher=submitit_slurm",
+         "hydra.launcher.cpus_per_task=1", "hydra.launcher.mem_gb=1", "domain=planar",
+         "instances.n=6", "constraints.m=4", "progress=false", "seed=0,1", store],
+        capture_output=True, text=True, cwd=tmp_path, env=pr.env())
+    assert res.returncode == 0, res.stderr
+    logs = sorted(tmp_path.glob("multirun/*/*/.submitit/*/*_log.out"))
+    banners = [line for log in logs for line in log.read_text().splitlines()
+               if line.startswith("dask:")]
+    assert len(banners) == 2 and all(b.startswith("dask: 1 worker at ") for b in banners)
+    for seed in (0, 1):
+        done = zarr.open_array(tmp_path / f"s{seed}.zarr" / "scores" / "done", mode="r")
+        assert done[...].all()
