@@ -7,6 +7,7 @@ import math
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 from dask.utils import format_bytes, parse_bytes
@@ -68,10 +69,12 @@ def start_slurm_cluster(cfg, n_workers: int):
 
 class JobKeeper:
     """Keeps ``jobs`` SLURM jobs queued or running: a job that SLURM no longer lists
-    (cancelled, timed out, node failure) is replaced, at most ``limit`` times per run."""
+    (cancelled, timed out, node failure) is replaced, at most ``limit`` times per run.
+    SLURM is asked (``squeue``) at most once per ``interval`` seconds."""
 
-    def __init__(self, cluster, jobs: int, limit: int, say):
+    def __init__(self, cluster, jobs: int, limit: int, say, interval: float = 5.0):
         self.cluster, self.jobs, self.limit, self.say = cluster, jobs, limit, say
+        self.interval, self.last = interval, -float("inf")
         self.replaced = 0
         self.warned = False
 
@@ -85,6 +88,9 @@ class JobKeeper:
         return set(out.split())
 
     def replace_lost(self) -> None:
+        if time.monotonic() - self.last < self.interval:
+            return
+        self.last = time.monotonic()
         submitted = {name: job.job_id for name, job in list(self.cluster.workers.items())
                      if getattr(job, "job_id", None)}
         if not submitted:
