@@ -17,11 +17,11 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-from pipeline.cluster import ClusterFailed, TaskFailed, tune_workers, worker_side
+from pipeline.cluster import ClusterFailed, TaskFailed, connect_first, tune_workers, worker_side
 from pipeline.cluster import connect as dask_client
 from pipeline.cluster.watchdog import Watchdog
 
-__all__ = ["Task", "TaskFailed", "dask_client", "run_tasks", "tune_workers"]
+__all__ = ["Task", "TaskFailed", "connect_first", "dask_client", "run_tasks", "tune_workers"]
 
 #: Seconds between checks of the cluster while waiting for results.
 POLL_S = 1.0

@@ -19,7 +19,7 @@ from rich.console import Console
 from pipeline import configs, worker
 from pipeline.configs import Stage
 from pipeline.domains import ConstraintSet, load_domain
-from pipeline.execution import Task, dask_client, run_tasks
+from pipeline.execution import Task, connect_first, dask_client, run_tasks
 from pipeline.store import (
     RESULT_COLUMNS,
     ScoreStore,
@@ -312,8 +312,8 @@ def run_pipeline(cfg, console: Console) -> None:
     try:
         writing = plan_stages(stage)
         if writing:
-            if {"raw", "scores"} & set(writing):
-                _ = run.client  # connect (or start) the cluster first: a failure writes nothing
+            if {"raw", "scores"} & set(writing) and connect_first(cfg.cluster):
+                _ = run.client  # connect before the store is touched: a failure writes nothing
             run.open_for_writing()
             run.say(f"store: {run.path} (config {run.store.attrs['config_hash']})")
             for name in writing:

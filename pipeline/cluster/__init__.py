@@ -9,8 +9,8 @@ import os
 os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")  # before distributed loads
 
 from pipeline.cluster.errors import ClusterError, ClusterFailed, TaskFailed  # noqa: E402
-from pipeline.cluster.session import connect, tune_workers  # noqa: E402
+from pipeline.cluster.session import connect, connect_first, tune_workers  # noqa: E402
 from pipeline.cluster.slurm import available_cores  # noqa: E402
 
 __all__ = ["ClusterError", "ClusterFailed", "TaskFailed", "available_cores", "connect",
-           "tune_workers"]
+           "connect_first", "tune_workers"]
