@@ -19,4 +19,5 @@ class ClusterFailed(TaskFailed):
     another version of it).  The message names the cause and ends with the resume hint."""
 
     def __init__(self, cause: str, *, resumable: bool = True):
+        self.cause = cause
         super().__init__(f"{cause}. {RESUME_HINT}" if resumable else cause)

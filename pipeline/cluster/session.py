@@ -11,7 +11,7 @@ from distributed import Client
 
 from pipeline.cluster import worker_side
 from pipeline.cluster.checks import check_config
-from pipeline.cluster.errors import ClusterError
+from pipeline.cluster.errors import ClusterError, ClusterFailed
 from pipeline.cluster.slurm import JobKeeper, available_cores, start_slurm_cluster
 from pipeline.cluster.watchdog import Watchdog
 from pipeline.configs import ClusterKind
@@ -63,7 +63,7 @@ def _start(cfg, say):
             reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise ClusterError(f"cluster.address={cfg.address}: no Dask scheduler answered "
                                f"within {cfg.connect_timeout:g} s ({reason})") from None
-        return None, client, None, f"; are workers running for {cfg.address}?"
+        return None, client, None, f"; check that workers run for {cfg.address}"
     cluster, jobs, logs = start_slurm_cluster(cfg, cfg.n_workers or 1)
     hint = (f"; see squeue and the job logs in {logs}"
             + ("" if cfg.slurm.interface else
@@ -110,6 +110,9 @@ def connect(cfg, console) -> Iterator[ClusterClient]:
     key = repr(cfg)
     client = _KEPT.get(key)
     if client is not None and client.status == "running":
+        client.watchdog.say = say  # this run's console
+        if client.watchdog.keeper is not None:
+            client.watchdog.keeper.say = say
         client.watchdog.check(force=True)
         say(f"dask: reusing {_describe(cfg, client, len(client.watchdog.known))}")
         yield client
@@ -123,6 +126,9 @@ def connect(cfg, console) -> Iterator[ClusterClient]:
                                    digest=worker_side.code_digest(), hint=hint)
         n = client.watchdog.wait_for_first()
         say(f"dask: {_describe(cfg, client, n)}")
+    except ClusterFailed as exc:  # before any work: nothing to resume
+        _close(client, cluster)
+        raise ClusterFailed(exc.cause, resumable=False) from None
     except BaseException:
         _close(client, cluster)
         raise

@@ -58,5 +58,5 @@ class Watchdog:
                 return n
             if time.monotonic() - start >= self.timeout:
                 raise ClusterFailed(f"no Dask worker connected within {self.timeout:g} s "
-                                    f"(cluster.worker_timeout){self.hint}", resumable=False)
+                                    f"(cluster.worker_timeout){self.hint}")
             time.sleep(0.2)

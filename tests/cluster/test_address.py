@@ -48,6 +48,17 @@ def test_zero_workers_refused(tmp_path):
     assert not store.exists()
 
 
+def test_scheduler_without_workers_stops_before_the_store(tmp_path, dask_procs):
+    address = dask_procs.scheduler()
+    store = tmp_path / "s.zarr"
+    res = address_run(store, address, "cluster.worker_timeout=2")
+    assert res.returncode == 1
+    assert error_lines(res.stderr) == [
+        f"failed: no Dask worker connected within 2 s (cluster.worker_timeout); check that "
+        f"workers run for {address}"], res.stderr
+    assert not store.exists() and not Path(f"{store}.lock").exists()
+
+
 def test_same_matrix_as_local_and_workers_tuned(tmp_path, dask_procs, local_reference):
     address = dask_procs.scheduler()
     dask_procs.worker()
