@@ -69,19 +69,33 @@ class StoreConfig:
 
 @dataclass
 class SlurmConfig:
-    queue: str | None = None
-    account: str | None = None
-    cores: int = 1
-    memory: str = "4GB"
+    """cluster=slurm: worker jobs submitted through dask-jobqueue (README, "Running on a
+    cluster").  Each job runs ``cores`` single-threaded worker processes."""
+
+    queue: str | None = None  # partition (sbatch -p)
+    account: str | None = None  # sbatch -A
+    cores: int = 1  # cores per job = worker processes per job
+    memory_per_worker: str = "4GB"  # a job asks for this x cores
     walltime: str = "04:00:00"
+    interface: str | None = None  # network interface of scheduler and workers (e.g. ib0)
+    job_extra_directives: list[str] = field(default_factory=list)  # e.g. ["--qos=long"]
+    job_script_prologue: list[str] = field(default_factory=list)  # e.g. ["module load x"]
+    local_directory: str | None = None  # workers' scratch folder (e.g. $TMPDIR); null: dask's
+    log_directory: str | None = None  # job logs; null: <run's output folder>/slurm-logs
+    max_replacements: int = 8  # lost jobs (cancelled, timed out) replaced at most this often
 
 
 @dataclass
 class ClusterConfig:
     kind: ClusterKind = ClusterKind.local
-    n_workers: int | None = None  # local: one per core when null; slurm: processes in total
+    n_workers: int | None = None  # local: one per allocated core when null; slurm: in total
     address: str | None = None  # kind=address: tcp://host:8786
     retries: int = 3  # per task, after a worker dies or a task raises
+    host: str = "127.0.0.1"  # where a scheduler started by this run listens
+    dashboard_address: str | None = "127.0.0.1:0"  # its dashboard; null: none
+    connect_timeout: float = 30.0  # seconds to reach cluster.address
+    worker_timeout: float = 180.0  # seconds without any worker before the run stops
+    reuse: bool = False  # keep the cluster for the next run of a sweep in this process
     slurm: SlurmConfig = field(default_factory=SlurmConfig)
 
 

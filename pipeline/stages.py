@@ -27,7 +27,7 @@ from rich.console import Console
 from pipeline import configs, worker
 from pipeline.configs import Stage
 from pipeline.domains import ConstraintSet, load_domain
-from pipeline.execution import Task, dask_client, run_tasks
+from pipeline.execution import Task, connect_first, dask_client, run_tasks
 from pipeline.integrity import Damage, digest
 from pipeline.location import locate
 from pipeline.store import (
@@ -591,6 +591,8 @@ def _write_stages(run: Run, names) -> None:
     try:
         for name in names:
             if not run.writing and run.todo(name) is not None:
+                if {"raw", "scores"} & set(names) and connect_first(run.cfg.cluster):
+                    _ = run.client  # connect before the store is touched: a failure writes nothing
                 run.open_for_writing()
                 run.say(f"store: {run.path} (config {run.store.attrs['config_hash']})")
             if not run.writing and name == "evaluate":
