@@ -9,8 +9,8 @@ import pytest
 
 from pipeline.domains import load_domain
 from pipeline.planning import Status, interpolate
-from pipeline.planning.rrt import PlannerSettings, path_is_free
-from pipeline.planning.trajopt import TrajOptOptions, optimise, trajopt_plan
+from pipeline.planning import PlannerSettings, path_is_free
+from pipeline.planning.trajopt import TrajOpt, TrajOptOptions, optimise
 from pipeline.sim import panda as P
 
 START, GOAL = np.array([0.0, 0.0]), np.array([1.0, 0.0])
@@ -99,18 +99,18 @@ def test_the_panda_goes_round_a_box_on_its_straight_path(blocked_swing):
     arm = blocked_swing
     assert not arm.collides_at(P.HOME) and not arm.collides_at(SWING)
     assert not path_is_free(np.array([P.HOME, SWING]), arm.check, 0.01)
-    res = trajopt_plan(arm, P.HOME, SWING, PlannerSettings(name="trajopt"))
+    res = TrajOpt(PlannerSettings(name="trajopt")).plan(arm, P.HOME, SWING)
     assert res.status is Status.OK and res.path.shape == (20, 7)
     assert path_is_free(res.path, arm.check, 0.01)
     assert res.length > np.linalg.norm(SWING - P.HOME)
-    again = trajopt_plan(arm, P.HOME, SWING, PlannerSettings(name="trajopt"))
+    again = TrajOpt(PlannerSettings(name="trajopt")).plan(arm, P.HOME, SWING)
     assert again.path.tobytes() == res.path.tobytes()
 
 
 def test_a_blocked_goal_is_infeasible(blocked_swing):
     arm = blocked_swing
     inside = P.HOME + 0.5 * (SWING - P.HOME)  # the hand inside the box
-    res = trajopt_plan(arm, P.HOME, inside, PlannerSettings(name="trajopt"))
+    res = TrajOpt(PlannerSettings(name="trajopt")).plan(arm, P.HOME, inside)
     assert not res.feasible and res.status in (Status.NOT_CONVERGED, Status.PATH_IN_COLLISION)
 
 

@@ -43,30 +43,29 @@ path crosses x = -``SUBGOAL_GAP``, in front of the door.
 
 from __future__ import annotations
 
-import dataclasses
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pybullet as pb
 
-from pipeline.domains.base import Domain, InstanceError, RawResult, require
-from pipeline.domains.grasp_arm import Box, hand_orientation, parse_obstacles, sample_obstacles
+from pipeline.domains.base import Domain, RawSearch
+from pipeline.domains.geometry import Box, rectangle, sample_obstacles
+from pipeline.domains.grasps import hand_orientation
+from pipeline.domains.ik import solve_ik
 from pipeline.domains.mobile_world import (
     OBSTACLE_RGBA,
     MobileScene,
     Table,
     TablePlacer,
-    rectangle,
     render_two_panels,
     sample_base_pose,
 )
-from pipeline.planning import PlanResult, RRTConnect, Status
-from pipeline.planning.result import path_length
-from pipeline.planning.rrt import path_is_free
+from pipeline.domains.schemas import PickPlaceConfig
+from pipeline.domains.specs import InstanceError, parse_obstacles, require
+from pipeline.planning import PlanResult, Status, path_is_free, path_length
 from pipeline.sim import panda as P
-from pipeline.sim.mobile import base_transform
+from pipeline.sim.mobile import MobileArm, MobileBase, base_transform
 from pipeline.sim.world import add_box, pose_matrix, quaternion, rot_z
 
 ROD_RGBA = (0.1, 0.1, 0.1, 1.0)
@@ -90,29 +89,6 @@ ORDERS = {"paper": ("pick_ik", "pick_path", "carry", "base_pose", "base_path", "
           "cheap_first": STEPS}
 FRACTIONS = np.linspace(-0.8, 0.8, 9)  # grasp position along the rod, × half-length
 ANGLES = (-np.pi / 6, 0.0, np.pi / 6)
-
-
-@dataclass
-class PickPlaceConfig:
-    """Schema of ``conf/domain/pick_place.yaml``."""
-
-    name: str = "pick_place"
-    obstacles: int = 28
-    obstacle_size: list[float] = field(default_factory=lambda: [0.05, 0.12])  # edge, metres
-    obstacle_height: list[float] = field(default_factory=lambda: [0.06, 0.25])
-    rod_lengths: list[float] = field(default_factory=lambda: [0.5, 0.7, 0.9])
-    door_width: float = 0.9
-    reach_radius: float = P.REACH  # RAWPLANNER's disc for k_b around the placement
-    pregrasp_offset: float = 0.10
-    ik_restarts: int = 10
-    psi_scale: float = 0.5  # metres per radian of base rotation (path metric)
-    arm_weight: float = 0.1  # metres per radian of arm motion (score)
-    base_max_checks: int = 4000  # collision checks per base path, both legs together
-    base_resolution: float = 0.04  # metres between checked base states
-    raw_grasps: int = 81  # RAWPLANNER: grasps tried at most
-    raw_placements: int = 6  # placements per grasp
-    raw_base_samples: int = 6  # collision-free k_b per placement
-    step_order: str = "paper"  # or "cheap_first" (pipeline.domains.pick_place.ORDERS)
 
 
 @dataclass(frozen=True)
@@ -190,9 +166,6 @@ class PickPlaceDomain(Domain):
 
     def __init__(self, config: PickPlaceConfig, planner):
         super().__init__(config, planner)
-        if planner.name == "trajopt":
-            raise ValueError("planner=trajopt is not available for pick_place (its arm "
-                             "motions carry the rod); use planner=rrt_connect")
         c = config
         if c.obstacles < 0 or c.ik_restarts < 1 or c.pregrasp_offset < 0:
             raise ValueError("domain: need obstacles >= 0, ik_restarts >= 1 and "
@@ -214,12 +187,9 @@ class PickPlaceDomain(Domain):
         self.grasps = rod_grasps()
         self._grasp_index = {tuple(np.round(g.features, 9)): k
                              for k, g in enumerate(self.grasps)}
-        self.rrt = RRTConnect(P.LOWER, P.UPPER, planner)
-        s = c.psi_scale
-        self.base_rrt = RRTConnect(
-            [ROOMS[0], ROOMS[2], -np.pi * s], [ROOMS[1], ROOMS[3], np.pi * s],
-            dataclasses.replace(planner, max_checks=c.base_max_checks,
-                                resolution=c.base_resolution))
+        self.arm_motion = self.planner_for(MobileArm)
+        self.base_motion = self.planner_for(MobileBase, max_checks=c.base_max_checks,
+                                            resolution=c.base_resolution)
         self.furniture = [START_TABLE.box(), GOAL_TABLE.box(), *walls(c.door_width)]
         self._scene: MobileScene | None = None
         self._rod: int | None = None
@@ -385,16 +355,16 @@ class PickPlaceDomain(Domain):
     def _step_pick_path(self, inst, theta: Route, seed: int, done: dict):
         self._reset(inst)
         robot = self._scene.robot
-        return self._path(done, "pick_path", self.rrt.plan(
-            P.HOME, done["pre"], self.rrt.budget(robot.arm_check), seed=2 * seed))
+        return self._path(done, "pick_path", self.arm_motion.plan(
+            MobileArm(robot), P.HOME, done["pre"], seed=2 * seed))
 
     def _step_place_path(self, inst, theta: Route, seed: int, done: dict):
         self._reset(inst)
         self._hold(inst, theta.grasp, done["carry"])
         robot = self._scene.robot
         robot.set_base(theta.place_pose)
-        return self._path(done, "place_path", self.rrt.plan(
-            done["carry"], done["place"], self.rrt.budget(robot.arm_check), seed=2 * seed + 1))
+        return self._path(done, "place_path", self.arm_motion.plan(
+            MobileArm(robot), done["carry"], done["place"], seed=2 * seed + 1))
 
     def _step_base_path(self, inst, theta: Route, seed: int, done: dict):
         return self._path(done, "base_path", self._drive(
@@ -406,6 +376,17 @@ class PickPlaceDomain(Domain):
         done["checks"] += result.checks
         done[key] = result.path
         return None if result.feasible else result
+
+    def base_model(self, robot) -> MobileBase:
+        """The base as the planners see it: (x, y, psi_scale · ψ) inside the rooms."""
+        s = self.config.psi_scale
+        return MobileBase(robot, s, [ROOMS[0], ROOMS[2], -np.pi * s],
+                          [ROOMS[1], ROOMS[3], np.pi * s])
+
+    def close(self) -> None:
+        if self._scene is not None:
+            self._scene.close()
+            self._scene, self._rod = None, None
 
     def _hold(self, inst, g: RodGrasp, carry: np.ndarray) -> None:
         """The rod in the hand, the arm in the carry configuration."""
@@ -420,11 +401,9 @@ class PickPlaceDomain(Domain):
         robot = self._scene.robot
         target = self.rod_pose(inst.rod_length, theta.placement) @ theta.grasp.rod_tcp(
             inst.rod_length)
-        if np.linalg.norm(target[:3, 3] - robot.arm.shoulder) > P.REACH:
-            return None, 0, Status.NO_IK
-        q, n, reached = robot.ik(target[:3, 3], quaternion(target[:3, :3]),
-                                 np.random.default_rng([seed, 13]), self.config.ik_restarts)
-        return q, n, (Status.GOAL_IN_COLLISION if reached else Status.NO_IK)
+        ik = solve_ik(robot, target[:3, 3], quaternion(target[:3, :3]),
+                      np.random.default_rng([seed, 13]), self.config.ik_restarts)
+        return ik.q, ik.checks, ik.status
 
     def _pick_ik(self, inst, g: RodGrasp, seed: int):
         """IK at the start for g's pre-grasp of the rod on the start table."""
@@ -432,22 +411,21 @@ class PickPlaceDomain(Domain):
         rod = rod_box(inst.rod_length, *ROD_START, 0.0, START_TABLE)
         grasp = pose_matrix(rod.position, np.eye(3)) @ g.rod_tcp(inst.rod_length)
         pre = grasp[:3, 3] - grasp[:3, 2] * self.config.pregrasp_offset
-        if np.linalg.norm(pre - robot.arm.shoulder) > P.REACH:
-            return None, 0, Status.NO_IK
-        q, n, reached = robot.ik(pre, quaternion(grasp[:3, :3]),
-                                 np.random.default_rng([seed, 17]), self.config.ik_restarts)
-        return q, n, (Status.GOAL_IN_COLLISION if reached else Status.NO_IK)
+        ik = solve_ik(robot, pre, quaternion(grasp[:3, :3]),
+                      np.random.default_rng([seed, 17]), self.config.ik_restarts)
+        return ik.q, ik.checks, ik.status
 
     def _drive(self, inst, g: RodGrasp, carry, poses, seed: int) -> PlanResult:
         """Base path through ``poses`` (the first is the start), arm in carry, rod held."""
         self._hold(inst, g, carry)
         s = self.config.psi_scale
         robot = self._scene.robot
-        budget = self.base_rrt.budget(robot.base_checker(s))
+        base = self.base_model(robot)
+        budget = self.base_motion.budget(base)
         legs = []
         scaled = [np.array([p[0], p[1], s * p[2]]) for p in poses]
         for leg, (a, b) in enumerate(zip(scaled[:-1], scaled[1:], strict=True)):
-            result = self.base_rrt.plan(a, b, budget, seed=3 * seed + leg)
+            result = self.base_motion.plan(base, a, b, seed=3 * seed + leg, budget=budget)
             if not result.feasible:
                 result.checks = budget.used
                 return result
@@ -472,18 +450,14 @@ class PickPlaceDomain(Domain):
                           length=length, checks=checks, segments=segments)
 
     # -- RAWPLANNER ------------------------------------------------------------------------
-    def raw_plan(self, instance, seed: int = 0) -> RawResult:
+    def _raw_search(self, inst: PickPlaceInstance, seed: int) -> RawSearch:
         """The paper's six steps with backtracking (module docstring)."""
-        t0 = time.perf_counter()
-        inst = self.check_instance(instance)
         self.scene(inst)
         try:
-            plan, used, tries = self._raw(inst, int(seed))
+            plan, used, tries = self._raw(inst, seed)
         finally:
             self._reset(inst)
-        plan.time = time.perf_counter() - t0
-        row = used.features if used is not None else np.full(12, np.nan)
-        return RawResult(plan=plan, constraint=row, tries=tries, time=plan.time)
+        return RawSearch(plan, None if used is None else used.features, tries, plan.checks)
 
     def _raw(self, inst: PickPlaceInstance, seed: int):
         c, robot = self.config, self._scene.robot
@@ -503,7 +477,7 @@ class PickPlaceDomain(Domain):
             if pre is None:
                 plan = PlanResult(status, step="pick_ik")
                 continue
-            pick = self.rrt.plan(P.HOME, pre, self.rrt.budget(robot.arm_check), seed=seed + tries)
+            pick = self.arm_motion.plan(MobileArm(robot), P.HOME, pre, seed=seed + tries)
             checks += pick.checks
             if not pick.feasible:
                 plan = _failed(pick, 0, "pick_path")
@@ -547,7 +521,7 @@ class PickPlaceDomain(Domain):
                 continue
             self._hold(inst, g, carry)
             robot.set_base(pose)
-            put = self.rrt.plan(carry, place, self.rrt.budget(robot.arm_check), seed=seed + tries)
+            put = self.arm_motion.plan(MobileArm(robot), carry, place, seed=seed + tries)
             checks += put.checks
             if not put.feasible:
                 plan = _failed(put, 0, "place_path")
@@ -584,14 +558,14 @@ class PickPlaceDomain(Domain):
         pick, drive, put = (plan.segments[k] for k in ("pick_path", "base_path", "place_path"))
         s = self.config.psi_scale
         try:
-            out = {"pick_path": path_is_free(pick[:, 3:], robot.arm_check,
+            out = {"pick_path": path_is_free(pick[:, 3:], MobileArm(robot),
                                              resolution or self.planner.resolution)}
             robot.set_arm(drive[0, 3:])
             robot.grasp(rod, np.linalg.inv(theta.grasp.rod_tcp(inst.rod_length)))
-            out["base_path"] = path_is_free(drive[:, :3] * [1.0, 1.0, s], robot.base_checker(s),
+            out["base_path"] = path_is_free(drive[:, :3] * [1.0, 1.0, s], self.base_model(robot),
                                             resolution or self.config.base_resolution)
             robot.set_base(put[0, :3])
-            out["place_path"] = path_is_free(put[:, 3:], robot.arm_check,
+            out["place_path"] = path_is_free(put[:, 3:], MobileArm(robot),
                                              resolution or self.planner.resolution)
             robot.set_arm(put[-1, 3:])
             placed, held = self.rod_pose(inst.rod_length, theta.placement), robot.held_pose()
