@@ -17,7 +17,7 @@ from pipeline.planning import PlannerSettings, PlanResult, Status
 from pipeline.planning.registry import make_planner, plans_nothing
 
 __all__ = ["ConstraintSet", "Domain", "InstanceError", "RawResult", "RawSearch",
-           "finite_rows", "require"]
+           "constraint_row", "finite_rows", "require"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -172,3 +172,12 @@ class Domain(abc.ABC):
         """Release simulator clients this domain holds (its cached scene); it may be used
         again afterwards (a new client is made then)."""
         return None
+
+
+def constraint_row(constraint, domain: str) -> np.ndarray:
+    """``constraint`` as a float array; ValueError naming the constraint if it is not
+    numbers (the domain then checks its shape and values)."""
+    try:
+        return np.asarray(constraint, float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{domain} constraint {constraint!r} is not a row of numbers") from None

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pybullet as pb
 
-from pipeline.domains.base import ConstraintSet, Domain, RawSearch
+from pipeline.domains.base import ConstraintSet, Domain, RawSearch, constraint_row
 from pipeline.domains.geometry import Box, sample_obstacles
 from pipeline.domains.grasps import Grasp, grasp_index, grasp_set, pregrasp_pose
 from pipeline.domains.ik import solve_ik
@@ -162,7 +162,7 @@ class GraspArmDomain(Domain):
                 raise ValueError(f"grasp_arm constraint index {constraint} out of range "
                                  f"0..{len(self.grasps) - 1}")
             return self.grasps[int(constraint)]
-        row = np.asarray(constraint, float)
+        row = constraint_row(constraint, self.name)
         index = grasp_index(row)
         if index is None:
             raise ValueError(f"grasp_arm constraint {constraint!r} is neither an index nor a "

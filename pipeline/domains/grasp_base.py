@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.domains.base import Domain, RawSearch
+from pipeline.domains.base import Domain, RawSearch, constraint_row
 from pipeline.domains.geometry import Box, sample_obstacles
 from pipeline.domains.grasps import Grasp, grasp_set, pregrasp_pose
 from pipeline.domains.ik import solve_ik
@@ -119,7 +119,7 @@ class GraspBaseDomain(Domain):
         """θ from its feature row (x, y, ψ, approach, rotation, depth)."""
         if isinstance(constraint, BaseGrasp):
             return constraint
-        row = np.asarray(constraint, float)
+        row = constraint_row(constraint, self.name)
         index = None
         if row.shape == (8,) and np.all(np.isfinite(row)):
             index = self._grasp_index.get(tuple(np.round(row[3:], 9)))

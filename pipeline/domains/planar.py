@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.domains.base import Domain, RawSearch
+from pipeline.domains.base import Domain, RawSearch, constraint_row
 from pipeline.domains.schemas import PlanarConfig
 from pipeline.domains.specs import InstanceError, finite_rows, require
 from pipeline.planning import PlanResult, Robot, Status, path_length
@@ -116,7 +116,7 @@ class PlanarDomain(Domain):
 
     def constraint(self, constraint) -> np.ndarray:
         """The via-point θ as a 2-vector."""
-        via = np.asarray(constraint, dtype=float)
+        via = constraint_row(constraint, self.name)
         if via.shape != (2,) or not np.all(np.isfinite(via)):
             raise ValueError(f"planar constraint must be 2 finite numbers, got {constraint!r}")
         return via
