@@ -10,8 +10,7 @@ import pytest
 from pipeline.domains import InstanceError, load_domain
 from pipeline.domains.grasp_base import BaseGrasp
 from pipeline.domains.pick_place import GOAL_TABLE, PickPlaceDomain, rod_grasps
-from pipeline.planning import Status
-from pipeline.planning import path_is_free
+from pipeline.planning import Status, path_is_free
 from pipeline.sim import panda as P
 
 TARGET = {"size": [0.04, 0.04, 0.12], "position": [0.8, 0.0, 0.461], "yaw": 0.0}

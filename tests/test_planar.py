@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from pipeline.domains import InstanceError, load_domain
-from pipeline.planning import Status
-from pipeline.planning import path_is_free
+from pipeline.planning import Status, path_is_free
 
 EMPTY = {"domain": "planar", "seed": 0, "obstacles": []}
 # a closed ring of walls around (5, 5): a via-point inside can be reached from nowhere

@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from pipeline.domains import load_domain
-from pipeline.planning import Status, interpolate
-from pipeline.planning import PlannerSettings, path_is_free
+from pipeline.planning import PlannerSettings, Status, interpolate, path_is_free
 from pipeline.planning.trajopt import TrajOpt, TrajOptOptions, optimise
 from pipeline.sim import panda as P
 
@@ -141,3 +140,10 @@ def test_domain_results_are_bitwise_identical_in_another_process(domain):
 def test_planar_refuses_trajopt():
     with pytest.raises(ValueError, match="trajopt"):
         load_domain("planar", planner="trajopt")
+
+
+def test_bad_trajopt_settings_are_refused_naming_the_key():
+    with pytest.raises(ValueError, match="trajopt_waypoints"):
+        load_domain("grasp_arm", planner={"name": "trajopt", "trajopt_waypoints": 2})
+    with pytest.raises(ValueError, match="trajopt_"):
+        load_domain("grasp_base", planner={"name": "trajopt", "trajopt_margin": -1.0})

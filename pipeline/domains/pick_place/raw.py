@@ -6,8 +6,6 @@ in 4-6 draws a new k_b, then a new placement, then a new grasp."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
 from pipeline.domains.base import RawSearch
@@ -23,11 +21,9 @@ from pipeline.domains.pick_place.world import (
 )
 from pipeline.planning import PlanResult, Status
 
-if TYPE_CHECKING:
-    from pipeline.domains.pick_place.domain import PickPlaceDomain
 
-
-def raw_search(d: PickPlaceDomain, inst, seed: int) -> RawSearch:
+def raw_search(d, inst, seed: int) -> RawSearch:
+    """The search, for ``d`` a PickPlaceDomain whose scene is loaded with ``inst``."""
     c = d.config
     rng = np.random.default_rng([seed, 2])
     checks, tries = 0, 0
@@ -64,7 +60,7 @@ def raw_search(d: PickPlaceDomain, inst, seed: int) -> RawSearch:
     return RawSearch(plan, None, tries, checks)
 
 
-def _place(d: PickPlaceDomain, inst, g, carry, pick_path, placement, rng, seed, tries):
+def _place(d, inst, g, carry, pick_path, placement, rng, seed, tries):
     """Steps 4-6 for one grasp and placement: (Route or None, plan, checks, tries)."""
     c, robot = d.config, d.robot
     checks, plan, free, draws = 0, PlanResult(Status.GOAL_IN_COLLISION, step="base_pose"), 0, 0
@@ -98,7 +94,7 @@ def _place(d: PickPlaceDomain, inst, g, carry, pick_path, placement, rng, seed, 
     return None, plan, checks, tries
 
 
-def _sample_placement(d: PickPlaceDomain, inst, rng, draws: int = 30):
+def _sample_placement(d, inst, rng, draws: int = 30):
     """A collision-free rod pose (x, y, yaw) on the goal table, or None; and the draws."""
     t = GOAL_TABLE
     scene = d.scene_of()

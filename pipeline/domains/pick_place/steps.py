@@ -7,7 +7,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,9 +16,6 @@ from pipeline.domains.pick_place.world import (
     placed_rod,
 )
 from pipeline.planning import PlanResult, Status
-
-if TYPE_CHECKING:
-    from pipeline.domains.pick_place.domain import PickPlaceDomain
 
 
 @dataclass
@@ -37,8 +33,9 @@ class Progress:
 
 @dataclass(frozen=True)
 class Step:
-    """``run(domain, inst, theta, seed, progress)`` fills ``provides`` and adds its checks
-    to ``progress``; it returns None, or the failed PlanResult."""
+    """``run(d, inst, theta, seed, progress)`` (``d`` the PickPlaceDomain) fills
+    ``provides`` and adds its checks to ``progress``; it returns None, or the failed
+    PlanResult."""
 
     name: str
     needs: tuple[str, ...]
@@ -46,13 +43,13 @@ class Step:
     run: Callable[..., PlanResult | None]
 
 
-def _carry(d: PickPlaceDomain, inst, theta: Route, seed: int, p: Progress):
+def _carry(d, inst, theta: Route, seed: int, p: Progress):
     """Cached per grasp and rod length, so its IK checks are not charged to entries."""
     p.carry, status = d.carry(inst, theta.grasp)
     return None if p.carry is not None else PlanResult(status)
 
 
-def _placement(d: PickPlaceDomain, inst, theta: Route, seed: int, p: Progress):
+def _placement(d, inst, theta: Route, seed: int, p: Progress):
     scene = d.reset(inst)
     scene.put_rod(placed_rod(inst.rod_length, theta.placement))
     p.checks += 1
@@ -61,7 +58,7 @@ def _placement(d: PickPlaceDomain, inst, theta: Route, seed: int, p: Progress):
     return None
 
 
-def _base_pose(d: PickPlaceDomain, inst, theta: Route, seed: int, p: Progress):
+def _base_pose(d, inst, theta: Route, seed: int, p: Progress):
     d.hold(inst, theta.grasp, p.carry)
     for pose, status in ((theta.subgoal, Status.START_IN_COLLISION),
                          (theta.place_pose, Status.GOAL_IN_COLLISION)):
@@ -71,7 +68,7 @@ def _base_pose(d: PickPlaceDomain, inst, theta: Route, seed: int, p: Progress):
     return None
 
 
-def _place_ik(d: PickPlaceDomain, inst, theta: Route, seed: int, p: Progress):
+def _place_ik(d, inst, theta: Route, seed: int, p: Progress):
     d.reset(inst)
     d.hold(inst, theta.grasp, p.carry)
     d.robot.set_base(theta.place_pose)
@@ -80,21 +77,21 @@ def _place_ik(d: PickPlaceDomain, inst, theta: Route, seed: int, p: Progress):
     return None if ik.found else PlanResult(ik.status)
 
 
-def _pick_ik(d: PickPlaceDomain, inst, theta: Route, seed: int, p: Progress):
+def _pick_ik(d, inst, theta: Route, seed: int, p: Progress):
     d.reset(inst)
     ik = d.pick_ik(inst, theta.grasp, seed)
     p.pre, p.checks = ik.q, p.checks + ik.checks
     return None if ik.found else PlanResult(ik.status)
 
 
-def _pick_path(d: PickPlaceDomain, inst, theta: Route, seed: int, p: Progress):
+def _pick_path(d, inst, theta: Route, seed: int, p: Progress):
     scene = d.reset(inst)
     result = d.arm_motion.plan(scene.arm, d.home, p.pre, seed=2 * seed)
     p.pick_path = result.path
     return _charged(p, result)
 
 
-def _place_path(d: PickPlaceDomain, inst, theta: Route, seed: int, p: Progress):
+def _place_path(d, inst, theta: Route, seed: int, p: Progress):
     scene = d.reset(inst)
     d.hold(inst, theta.grasp, p.carry)
     d.robot.set_base(theta.place_pose)
@@ -103,7 +100,7 @@ def _place_path(d: PickPlaceDomain, inst, theta: Route, seed: int, p: Progress):
     return _charged(p, result)
 
 
-def _base_path(d: PickPlaceDomain, inst, theta: Route, seed: int, p: Progress):
+def _base_path(d, inst, theta: Route, seed: int, p: Progress):
     result = d.drive(inst, theta.grasp, p.carry, [d.start_pose, theta.subgoal,
                                                   theta.place_pose], seed)
     p.base_path = result.path
@@ -151,7 +148,7 @@ def check_order(order: tuple[str, ...]) -> None:
         have.update(step.provides)
 
 
-def run_steps(d: PickPlaceDomain, inst, theta: Route, seed: int, order) -> PlanResult:
+def run_steps(d, inst, theta: Route, seed: int, order) -> PlanResult:
     """Run the steps in ``order``; the first that fails ends the call (its result names
     the step and carries the checks of all steps run)."""
     p = Progress()
