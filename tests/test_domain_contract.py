@@ -41,9 +41,14 @@ def make(domain: str, planner: str):
         return None
 
 
+#: the wall-clock safety net out of reach: a loaded machine must not turn a call into
+#: "timeout" (the only machine-dependent status) and break a determinism check
+NO_WALL_CAP = 1e6
+
+
 @functools.cache
 def _make(domain: str, planner: str):
-    return load_domain(domain, planner=planner)
+    return load_domain(domain, planner={"name": planner, "wall_cap_s": NO_WALL_CAP})
 
 
 @functools.cache
@@ -102,6 +107,7 @@ def test_registry_accepts_or_refuses_with_one_message(domain, planner):
     d = make(domain, planner)
     if d is not None:
         assert d.name == domain and d.planner.name == planner
+        assert load_domain(domain, planner=planner).planner.name == planner
         assert d.steps and len(set(d.steps)) == len(d.steps)
 
 
@@ -117,7 +123,7 @@ PROCESS_CODE = """
 import json, sys
 import numpy as np
 from pipeline.domains import load_domain
-d = load_domain(sys.argv[1], planner=sys.argv[2])
+d = load_domain(sys.argv[1], planner={"name": sys.argv[2], "wall_cap_s": 1e6})
 out = []
 for spec, row, seed in json.loads(sys.argv[3]):
     r = d.plan(spec, np.asarray(row, float), seed=seed)
