@@ -12,15 +12,16 @@ import enum
 import hashlib
 import json
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from omegaconf import MISSING, OmegaConf
-from omegaconf.errors import OmegaConfBaseException
 
-from pipeline.planning.rrt import PlannerSettings
+from pipeline.domains.schemas import DOMAIN_SCHEMAS
+from pipeline.planning.registry import PlannerSettings
+from pipeline.yaml_configs import CONF_DIR, load_yaml_config, planner_settings
 
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+__all__ = ["CONF_DIR", "Config", "PlannerSettings", "identity", "load_yaml_config",
+           "planner_settings", "register_configs"]
 
 
 class Stage(enum.Enum):
@@ -153,41 +154,12 @@ def register_configs() -> None:
     """Put the schemas in Hydra's ConfigStore (the YAML files name them in ``defaults``)."""
     from hydra.core.config_store import ConfigStore
 
-    from pipeline.domains import DOMAINS, domain_class
-
     cs = ConfigStore.instance()
     cs.store(name="config_schema", node=Config)
     cs.store(group="planner", name="planner_schema", node=PlannerSettings)
     cs.store(group="cluster", name="cluster_schema", node=ClusterConfig)
-    for name in DOMAINS:
-        cs.store(group="domain", name=f"{name}_schema", node=domain_class(name).config_class)
-
-
-def load_yaml_config(group: str, name: str, schema: type, overrides: dict | None = None):
-    """``conf/<group>/<name>.yaml`` checked against ``schema``, with ``overrides``, as a
-    ``schema`` instance.  The same composition Hydra does, without Hydra."""
-    path = CONF_DIR / group / f"{name}.yaml"
-    if not path.is_file():
-        raise ValueError(f"no {group} config {name!r}: {path} does not exist")
-    raw = OmegaConf.load(path)
-    raw.pop("defaults", None)
-    try:
-        node = OmegaConf.merge(OmegaConf.structured(schema), raw, OmegaConf.create(overrides or {}))
-        return OmegaConf.to_object(node)
-    except OmegaConfBaseException as exc:
-        raise ValueError(f"{group} config {name!r}: {exc}".splitlines()[0]) from None
-
-
-def planner_settings(planner=None) -> PlannerSettings:
-    """A PlannerSettings from a name (conf/planner/<name>.yaml), a mapping or itself."""
-    if planner is None:
-        planner = "rrt_connect"
-    if isinstance(planner, PlannerSettings):
-        return planner
-    if isinstance(planner, str):
-        return load_yaml_config("planner", planner, PlannerSettings)
-    return load_yaml_config("planner", planner.get("name", "rrt_connect"), PlannerSettings,
-                            dict(planner))
+    for name, schema in DOMAIN_SCHEMAS.items():
+        cs.store(group="domain", name=f"{name}_schema", node=schema)
 
 
 #: The keys that determine a store's contents (a store refuses to continue under others).

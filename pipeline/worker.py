@@ -9,29 +9,15 @@ built once per worker process and cached.
 
 from __future__ import annotations
 
-import functools
 import json
 import time
 from collections import Counter
 
 import numpy as np
 
-from pipeline.domains import load_domain
+from pipeline.domains.cache import domain_for
 from pipeline.planning import PlanResult, Status
 from pipeline.store import RESULT_COLUMNS
-
-
-@functools.lru_cache(maxsize=4)
-def _domain(name: str, domain_json: str, planner_json: str):
-    """One domain object per process and configuration (the per-process simulator cache)."""
-    return load_domain(name, planner=json.loads(planner_json), **json.loads(domain_json))
-
-
-def domain_for(spec: dict):
-    """``spec``: {"name", "config", "planner"} as plain data (what tasks receive)."""
-    return _domain(spec["name"], json.dumps(spec["config"], sort_keys=True),
-                   json.dumps(spec["planner"], sort_keys=True))
-
 
 #: Stands in for the constraint index in the seed of RAWPLANNER's call on an instance.
 RAW_ENTRY = 2**40
