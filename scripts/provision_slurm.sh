@@ -19,11 +19,30 @@ STATE=/var/lib/slurm
 cannot() { echo "cannot provide SLURM: $*" >&2; exit 3; }
 in_ns() { nsenter --net="/run/netns/$NS" "$@"; }  # not ip netns exec: it remounts /sys
 
+ns_pids() { ip netns pids "$NS" 2>/dev/null || true; }
+
+# Cancel every job and let the steps finish (a step whose slurmd is gone hangs for ever and
+# is recovered as running by the next slurmctld), then end every process in the namespace:
+# daemons, job steps, workers; nothing outside it.
 stop() {
-  for pidfile in /run/slurmd.pid /run/slurmctld.pid; do
-    if [ -s "$pidfile" ]; then kill "$(cat "$pidfile")" 2>/dev/null || true; rm -f "$pidfile"; fi
-  done
-  ip netns del "$NS" 2>/dev/null || true
+  if ip netns list 2>/dev/null | grep -qw "$NS"; then
+    in_ns scancel --full --user=root 2>/dev/null || true
+    for _ in $(seq 40); do
+      [ -z "$(in_ns squeue -h -o %i 2>/dev/null)" ] && break
+      sleep 0.25
+    done
+    pids=$(ns_pids)
+    if [ -n "$pids" ]; then
+      # shellcheck disable=SC2086
+      kill $pids 2>/dev/null || true
+      sleep 1
+      pids=$(ns_pids)
+      # shellcheck disable=SC2086
+      [ -z "$pids" ] || kill -9 $pids 2>/dev/null || true
+    fi
+    ip netns del "$NS" 2>/dev/null || true
+  fi
+  rm -f /run/slurmd.pid /run/slurmctld.pid
 }
 
 [ "$(id -u)" = 0 ] || cannot "needs root (apt-get, daemons, network namespaces)"
@@ -61,8 +80,9 @@ if ! munge -n </dev/null >/dev/null 2>&1; then
   runuser -u munge -- /usr/sbin/munged || cannot "munged did not start"
 fi
 
-cpus=$(nproc)
-memory_mb=$(( $(awk '/MemTotal/ {print $2}' /proc/meminfo) / 1024 - 256 ))
+# this machine as slurmd sees it (CPUs, sockets, cores, memory), named localhost
+node=$(slurmd -C | head -1 | sed -E 's/^NodeName=[^ ]+ //; s/ UpTime=.*//')
+rm -rf "$STATE/slurmctld" "$STATE/slurmd"  # no jobs recovered from an earlier start
 mkdir -p "$LOGS" "$STATE/slurmctld" "$STATE/slurmd" /etc/slurm
 cat > "$CONF" <<CONFIG
 # Written by scripts/provision_slurm.sh: one node, loopback only, for tests.
@@ -86,7 +106,7 @@ SelectTypeParameters=CR_Core
 MpiDefault=none
 ReturnToService=2
 SlurmdTimeout=30
-NodeName=localhost NodeAddr=127.0.0.1 CPUs=$cpus RealMemory=$memory_mb State=UNKNOWN
+NodeName=localhost NodeAddr=127.0.0.1 $node State=UNKNOWN
 PartitionName=debug Nodes=ALL Default=YES MaxTime=INFINITE State=UP
 CONFIG
 

@@ -9,7 +9,7 @@ import psutil
 import pytest
 from rich.console import Console
 
-from pipeline.cluster import ClusterError, available_cores, connect
+from pipeline.cluster import ClusterError, available_cores, connect, worker_side
 from pipeline.cluster.checks import check_config
 from pipeline.configs import ClusterConfig, ClusterKind, SlurmConfig
 
@@ -37,7 +37,7 @@ def _listening(process: psutil.Process) -> set[str]:
             if c.status == psutil.CONN_LISTEN}
 
 
-def test_local_cluster_listens_on_loopback_only_and_says_where():
+def test_local_cluster_listens_on_loopback_only_says_where_and_is_tuned():
     out = io.StringIO()
     console = Console(file=out, width=200)
     with connect(ClusterConfig(n_workers=1), console) as client:
@@ -49,7 +49,10 @@ def test_local_cluster_listens_on_loopback_only_and_says_where():
         port = client.scheduler_info()["services"]["dashboard"]
         ports = {c.laddr.port for c in me.net_connections(kind="inet")
                  if c.status == psutil.CONN_LISTEN}
+        settings = client.run(worker_side.probe)
     assert hosts == {"127.0.0.1"}
+    assert [(s["env"], s["config"]) for s in settings.values()] == [
+        ({}, worker_side.TUNED_CONFIG)]
     assert port in ports
     assert f"dask: 1 worker at {address}; dashboard http://127.0.0.1:{port}/status" \
         in out.getvalue()
