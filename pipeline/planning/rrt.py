@@ -37,6 +37,7 @@ Checker = Callable[[np.ndarray], tuple[bool, int]]
 
 
 PLANNERS = ("rrt_connect", "trajopt", "noop")
+COLLISION = ("spheres", "exact")
 
 
 @dataclass
@@ -44,6 +45,9 @@ class PlannerSettings:
     """Settings of one planning call (schema of ``conf/planner/*.yaml``).
 
     ``noop`` plans nothing: the pipeline records "skipped" for every score entry.
+    ``collision``: ``spheres`` checks edges with the sphere pre-check and confirms only what
+    it cannot clear (:mod:`pipeline.sim.fast_check`; same answers and counts as ``exact``,
+    pybullet on every configuration).
     ``trajopt`` (:mod:`pipeline.planning.trajopt`) uses the ``trajopt_*`` keys, plus
     ``resolution`` for the dense re-check of its result and ``wall_cap_s``.
     """
@@ -54,6 +58,7 @@ class PlannerSettings:
     resolution: float = 0.01
     range: float = 0.0
     shortcut_attempts: int = 40
+    collision: str = "spheres"
     trajopt_waypoints: int = 20
     trajopt_margin: float = 0.02  # metres
     trajopt_penalty: float = 10.0  # initial hinge coefficient
@@ -70,6 +75,9 @@ class PlannerSettings:
             raise ValueError(f"planner.wall_cap_s must be positive, got {self.wall_cap_s}")
         if not self.resolution > 0:
             raise ValueError(f"planner.resolution must be positive, got {self.resolution}")
+        if self.collision not in COLLISION:
+            raise ValueError(f"planner.collision must be one of {', '.join(COLLISION)}, got "
+                             f"{self.collision!r}")
         if self.range < 0 or self.shortcut_attempts < 0:
             raise ValueError("planner.range and planner.shortcut_attempts must be >= 0")
         if self.trajopt_waypoints < 3:
@@ -173,6 +181,11 @@ class RRTConnect:
         return self.lower.shape[0]
 
     def budget(self, check: Checker) -> Budget:
+        """A budget for one planning call; make it once the scene is set for the call."""
+        if self.settings.collision == "spheres":
+            from pipeline.sim.fast_check import certified
+
+            check = certified(check)
         return Budget(check, self.settings.max_checks, self.settings.wall_cap_s)
 
     def plan(self, start, goal, budget: Budget, seed: int) -> PlanResult:

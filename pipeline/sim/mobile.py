@@ -128,14 +128,23 @@ class MobilePanda:
                 return False, k + 1
         return True, len(states)
 
-    def base_checker(self, psi_scale: float):
+    def base_checker(self, psi_scale: float) -> BaseCheck:
         """Checker for base paths whose states are (x, y, psi_scale · ψ), arm fixed."""
-        def check(states: np.ndarray) -> tuple[bool, int]:
-            for k, s in enumerate(states):
-                if self.base_collides((s[0], s[1], s[2] / psi_scale)):
-                    return False, k + 1
-            return True, len(states)
-        return check
+        return BaseCheck(self, psi_scale)
+
+    # -- what the sphere pre-check (pipeline.sim.fast_check) reads -------------------------
+    hand_links = HAND_LINKS
+
+    def base_frame(self) -> np.ndarray:
+        return base_transform(self.pose)
+
+    @property
+    def held_in_tcp(self) -> np.ndarray:
+        return self._tcp_obj
+
+    @property
+    def held_in_base(self) -> np.ndarray:
+        return self._base_obj
 
     def ik(self, position, orientation, rng: np.random.Generator, restarts: int):
         """Panda.ik with this robot's check (platform and held object included)."""
@@ -143,3 +152,19 @@ class MobilePanda:
 
     def held_pose(self) -> np.ndarray:
         return _pose_of(self.held, self.client)
+
+
+class BaseCheck:
+    """The exact checker of base states (x, y, psi_scale · ψ) of ``robot``, arm fixed."""
+
+    def __init__(self, robot: MobilePanda, psi_scale: float):
+        self.robot, self.psi_scale = robot, psi_scale
+
+    def collides(self, s) -> bool:
+        return self.robot.base_collides((s[0], s[1], s[2] / self.psi_scale))
+
+    def __call__(self, states: np.ndarray) -> tuple[bool, int]:
+        for k, s in enumerate(states):
+            if self.collides(s):
+                return False, k + 1
+        return True, len(states)
