@@ -190,3 +190,17 @@ def first_uncertain(frames, start, pre, grp_frame, grp_c, grp_r, grp_lo, grp_hi,
                 if _sphere_box(obs_c[u], obs_r[u], cw, Rw, rbox_h[b]):
                     return n
     return frames.shape[0]
+
+
+@njit(cache=True)
+def wrist_cells(q, lower, step, state, pre):  # pragma: no cover (compiled)
+    """pre[n] = the (q5, q6) grid cell of configuration n is not known free; returns how
+    many of those cells are not known at all (state 0: unknown, 1: free, 2: maybe in
+    contact)."""
+    unknown = 0
+    for n in range(q.shape[0]):
+        i = min(max(int(math.floor((q[n, 5] - lower[0]) / step + 0.5)), 0), state.shape[0] - 1)
+        k = min(max(int(math.floor((q[n, 6] - lower[1]) / step + 0.5)), 0), state.shape[1] - 1)
+        pre[n] = state[i, k] != 1
+        unknown += state[i, k] == 0
+    return unknown

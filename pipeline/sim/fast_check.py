@@ -19,6 +19,7 @@ in it (a mesh, an unknown robot) is not certified: every row goes to the exact c
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -27,11 +28,25 @@ import pybullet as pb
 
 from pipeline.sim import collide, spheres, wrist
 
-#: extra clearance (metres) on the boxes that ride on the robot (a mobile base's platform)
-BOX_MARGIN = 0.005
+#: extra radius (metres) of the robot's spheres and of other robots' spheres: pybullet
+#: collides meshes as their convex hulls grown by its collision margin (1 mm; measured
+#: distances are up to 0.9 mm below the hulls'), plus rounding
+MARGIN = 0.0025
+#: extra clearance (metres) on the boxes that ride on the robot (platform, held object)
+BOX_MARGIN = 0.0025
 #: base motions: parts of the robot at least this far apart stay apart (pybullet's
 #: distances of rigidly moved parts agree far below this)
 INTERNAL_CLEARANCE = 1e-4
+
+
+def _matrices(quaternions: np.ndarray) -> np.ndarray:
+    """Rotation matrices (K, 3, 3) of unit quaternions (K, 4), pybullet's (x, y, z, w)."""
+    x, y, z, w = quaternions.T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+    ], 1)
 
 
 def _frame(position, orientation) -> np.ndarray:
@@ -96,22 +111,23 @@ class World:
     def read(cls, client: int, skip) -> World | None:
         """Every body of ``client`` but those in ``skip``; None when one is neither a box
         nor a Panda."""
-        poses, halves, bodies, centres, radii = [], [], [], [np.zeros((0, 3))], [np.zeros(0)]
+        boxes, halves, bodies, centres, radii = [], [], [], [np.zeros((0, 3))], [np.zeros(0)]
         groups = []
-        model = spheres.panda_spheres()
+        model = spheres.panda_spheres(MARGIN)
         for i in range(pb.getNumBodies(physicsClientId=client)):
             body = pb.getBodyUniqueId(i, physicsClientId=client)
             if body in skip:
                 continue
-            box = _box_of(client, body)
-            if box is not None:
-                poses.append(box[0])
-                halves.append(box[1])
+            shapes = pb.getCollisionShapeData(body, -1, physicsClientId=client)
+            if (len(shapes) == 1 and shapes[0][2] == pb.GEOM_BOX
+                    and not pb.getNumJoints(body, physicsClientId=client)):
+                boxes.append((*pb.getBasePositionAndOrientation(body, physicsClientId=client),
+                              shapes[0][5], shapes[0][6]))
+                halves.append(shapes[0][3])
                 bodies.append(body)
             elif _is_panda(client, body):
-                base = base_link_frame(client, body)
-                frames = spheres.arm_frames(arm_state(client, body)[None], base)
-                c = model.world(frames)[0]
+                q = arm_state(client, body)[None]
+                c = model.world(_arm_frames_fn(base_link_frame(client, body))(q))[0]
                 first = sum(len(r) for r in radii)
                 for link in spheres.LINKS:
                     idx = np.flatnonzero(model.links == link)
@@ -121,9 +137,13 @@ class World:
                 radii.append(model.radii)
             else:
                 return None
-        T = np.array(poses).reshape(-1, 4, 4)
-        return cls(np.ascontiguousarray(T[:, :3, 3]), np.ascontiguousarray(T[:, :3, :3]),
-                   np.array(halves).reshape(-1, 3), np.concatenate(centres),
+        R = _matrices(np.array([b[1] for b in boxes]).reshape(-1, 4))
+        t = np.array([b[0] for b in boxes], float).reshape(-1, 3)
+        for k, (_, _, pos, orn) in enumerate(boxes):  # shapes off their body's frame
+            if any(pos) or tuple(orn) != (0.0, 0.0, 0.0, 1.0):
+                T = _frame(*boxes[k][:2]) @ _frame(pos, orn)
+                R[k], t[k] = T[:3, :3], T[:3, 3]
+        return cls(t, R, np.array(halves, float).reshape(-1, 3) / 2, np.concatenate(centres),
                    np.concatenate(radii), bodies,
                    np.array([g[0] for g in groups], dtype=np.int64),
                    np.array([g[1] for g in groups], dtype=np.int64),
@@ -302,19 +322,21 @@ def _arm_frames_fn(base: np.ndarray):
     return frames
 
 
-def _held_group(client: int, held: int, rel: np.ndarray, frame: int, margin: float):
-    """Sphere groups (chunks of four, for tight bounding spheres) covering the box body
-    ``held`` whose pose in arm frame ``frame`` is ``rel`` (4 × 4), or None for a body that
-    is not a single box."""
+def _held_parts(client: int, held: int, rel: np.ndarray, frame: int):
+    """The box body ``held`` whose pose in robot frame ``frame`` is ``rel`` (4 × 4), as
+    (sphere groups covering it, in chunks of four for tight bounds, for contacts with the
+    arm; the box itself, for contacts with the world), or None when it is not one box."""
     if pb.getNumJoints(held, physicsClientId=client):
         return None
     shapes = pb.getCollisionShapeData(held, -1, physicsClientId=client)
     if len(shapes) != 1 or shapes[0][2] != pb.GEOM_BOX:
         return None
     T = rel @ _frame(shapes[0][5], shapes[0][6])
-    c, r = box_spheres(np.asarray(shapes[0][3], float) / 2, margin)
+    half = np.asarray(shapes[0][3], float) / 2
+    c, r = box_spheres(half, MARGIN)
     c = c @ T[:3, :3].T + T[:3, 3]
-    return [(frame, c[k:k + 4], r[k:k + 4], True) for k in range(0, len(c), 4)]
+    groups = [(frame, c[k:k + 4], r[k:k + 4], False) for k in range(0, len(c), 4)]
+    return groups, (frame, T, half + BOX_MARGIN)
 
 
 def wrist_table(ignored_pairs) -> wrist.WristTable:
@@ -324,36 +346,49 @@ def wrist_table(ignored_pairs) -> wrist.WristTable:
                              P.UPPER[6])
 
 
-def _arm_robot(client: int, arm_body: int, ignored_pairs, held, hand_links, margin):
+@functools.lru_cache(maxsize=8)
+def _panda_parts(ignored: frozenset):
+    """(groups, group index of each link, self pairs) of a Panda whose filtered link pairs
+    are ``ignored``; the wrist's own pairs are left to :mod:`pipeline.sim.wrist`."""
+    groups, index = panda_groups(spheres.panda_spheres(MARGIN))
+    return tuple(groups), index, tuple(self_pairs(index, set(ignored) | set(wrist.PAIRS)))
+
+
+@functools.lru_cache(maxsize=8)
+def _panda_robot(ignored: frozenset) -> Robot:
+    groups, _, pairs = _panda_parts(ignored)
+    return Robot.build(groups, pairs)
+
+
+def _arm_robot(client: int, arm_body: int, ignored_pairs, held, hand_links):
     """(Robot of the arm and its held box, frames function, whether the held box could be
-    modelled).  ``held``: None or (body, its pose in the frame of link 6, 4 × 4).  The
-    wrist's own pairs are left to :mod:`pipeline.sim.wrist`."""
-    model = spheres.panda_spheres(margin)
-    groups, index = panda_groups(model)
-    pairs = self_pairs(index, set(ignored_pairs) | set(wrist.PAIRS))
+    modelled).  ``held``: None or (body, its pose in the frame of link 6, 4 × 4)."""
+    ignored = frozenset(ignored_pairs)
     frames = _arm_frames_fn(base_link_frame(client, arm_body))
-    if held is not None:
-        held_groups = _held_group(client, held[0], held[1], spheres.FRAME_OF_LINK[6], margin)
-        if held_groups is None:
-            return None, frames, False
-        first = len(groups)
-        groups += held_groups
-        pairs += [(g, index[link]) for g in range(first, len(groups)) for link in index
-                  if link not in hand_links]
-    return Robot.build(groups, pairs), frames, True
+    if held is None:
+        return _panda_robot(ignored), frames, True
+    groups, index, pairs = _panda_parts(ignored)
+    parts = _held_parts(client, held[0], held[1], spheres.FRAME_OF_LINK[6])
+    if parts is None:
+        return None, frames, False
+    first = len(groups)
+    groups = list(groups) + parts[0]
+    pairs = list(pairs) + [(g, index[link]) for g in range(first, len(groups)) for link in index
+                           if link not in hand_links]
+    return Robot.build(groups, pairs, boxes=[parts[1]]), frames, True
 
 
-def arm_checker(client: int, arm_body: int, ignored_pairs, exact, *, held: int | None = None,
-                hand_links=frozenset(), fixed_robot=(), margin: float = 0.005) -> SphereChecker:
+def arm_checker(client: int, arm_body: int, ignored_pairs, exact, *, held=None,
+                hand_links=frozenset(), fixed_robot=()) -> SphereChecker:
     """Checker for arm motions with the base fixed.
 
     ``ignored_pairs``: the arm's link pairs pybullet does not check; ``held``: (body, pose
     in the frame of link 6) of a box carried rigidly by the hand (its contacts with
-    ``hand_links`` are the grasp);
-    ``fixed_robot``: bodies of the same robot that do not move (a platform): the arm and
-    the held box must not touch them, and they must not touch the world.
+    ``hand_links`` are the grasp); ``fixed_robot``: bodies of the same robot that do not
+    move (a platform): the arm and the held box must not touch them, and they must not
+    touch the world.
     """
-    robot, frames, ok = _arm_robot(client, arm_body, ignored_pairs, held, hand_links, margin)
+    robot, frames, ok = _arm_robot(client, arm_body, ignored_pairs, held, hand_links)
     world = World.read(client, {arm_body} | ({held[0]} if held is not None else set()))
     certified = ok and world is not None
     for body in fixed_robot:  # a fixed part of the robot is a box of the world ...
@@ -371,8 +406,7 @@ def arm_checker(client: int, arm_body: int, ignored_pairs, exact, *, held: int |
 
 
 def base_checker(client: int, arm_body: int, platform: int, base_pose: np.ndarray,
-                 psi_scale: float, exact, internal_free: bool, *, held=None,
-                 margin: float = 0.005) -> SphereChecker:
+                 psi_scale: float, exact, internal_free: bool, *, held=None) -> SphereChecker:
     """Checker for base motions (x, y, psi_scale · ψ) of a mobile arm, arm fixed.
 
     ``base_pose`` is the base's current 4 × 4 transform (its frame: on the floor under the
@@ -385,17 +419,18 @@ def base_checker(client: int, arm_body: int, platform: int, base_pose: np.ndarra
     if not internal_free or box is None:
         return SphereChecker(None, None, None, exact, certified=False)
     to_base = np.linalg.inv(base_pose)
-    model = spheres.panda_spheres(margin)
+    model = spheres.panda_spheres(MARGIN)
     arm = spheres.arm_frames(arm_state(client, arm_body)[None], base_link_frame(client, arm_body))
     centres = model.world(arm)[0] @ to_base[:3, :3].T + to_base[:3, 3]
     groups = [(0, centres[model.links == link], model.radii[model.links == link], link != -1)
               for link in spheres.LINKS]
+    boxes = [(0, to_base @ box[0], box[1] + BOX_MARGIN)]
     if held is not None:
-        held_groups = _held_group(client, held[0], held[1], 0, margin)
-        if held_groups is None:
+        parts = _held_parts(client, held[0], held[1], 0)
+        if parts is None:
             return SphereChecker(None, None, None, exact, certified=False)
-        groups += held_groups
-    robot = Robot.build(groups, boxes=[(0, to_base @ box[0], box[1] + BOX_MARGIN)])
+        boxes.append(parts[1])
+    robot = Robot.build(groups, boxes=boxes)
     world = World.read(client, {arm_body, platform} | ({held[0]} if held is not None else set()))
 
     def base_frames(states):

@@ -217,7 +217,7 @@ class SphereModel:
 
 
 @functools.lru_cache(maxsize=4)
-def panda_spheres(margin: float = 0.005, slab_ratio: float = 0.5,
+def panda_spheres(margin: float = 0.0025, slab_ratio: float = 0.3,
                   fingers: float = 0.04) -> SphereModel:
     """The conservative sphere model of the Panda's collision meshes (module docstring),
     the fingers at opening ``fingers``."""

@@ -8,7 +8,7 @@ points a distance changes by at most ρ5·|Δq5| + ρ6·|Δq6| (ρj: how far the
 geometry reaches from joint j's axis, bounded by distances from the joint's origin), so a
 configuration is certified free of these contacts when its nearest grid point's distance
 exceeds that bound for half a grid step, plus ``SLACK``.  Cells are computed when first
-needed (a planning process visits a few thousand of the 15,000).
+needed (a planning process visits a few thousand of the 38,000).
 """
 
 from __future__ import annotations
@@ -19,11 +19,11 @@ import functools
 import numpy as np
 import pybullet as pb
 
-from pipeline.sim import spheres
+from pipeline.sim import collide, spheres
 
 #: link pairs whose relative pose depends on q5 and q6 only (forearm, wrist vs the rest)
 PAIRS = tuple((a, b) for a in (4, 5) for b in (6, 8, 9, 10) if (a, b) != (5, 6))
-STEP = 0.04  # radians between grid points
+STEP = 0.025  # radians between grid points
 SLACK = 0.002  # metres on top of the interpolation bound
 
 
@@ -41,12 +41,15 @@ class WristTable:
 
     def uncertain(self, q: np.ndarray) -> np.ndarray:
         """(N,) whether configurations ``q`` (N, 7) may have a wrist self-contact."""
-        idx = np.rint((q[:, 5:7] - self.lower) / STEP).astype(np.int64)
-        idx = np.clip(idx, 0, np.array(self.state.shape) - 1)
-        cells = self.state[idx[:, 0], idx[:, 1]]
-        for i, k in {tuple(c) for c in idx[cells == 0]}:
-            self.state[i, k] = 1 if self._free(self.lower + STEP * np.array([i, k])) else 2
-        return self.state[idx[:, 0], idx[:, 1]] != 1
+        q = np.ascontiguousarray(q, float)
+        pre = np.empty(len(q), dtype=np.bool_)
+        if collide.wrist_cells(q, self.lower, STEP, self.state, pre):
+            idx = np.rint((q[:, 5:7] - self.lower) / STEP).astype(np.int64)
+            idx = np.clip(idx, 0, np.array(self.state.shape) - 1)
+            for i, k in {tuple(c) for c in idx if self.state[c[0], c[1]] == 0}:
+                self.state[i, k] = 1 if self._free(self.lower + STEP * np.array([i, k])) else 2
+            collide.wrist_cells(q, self.lower, STEP, self.state, pre)
+        return pre
 
     def _free(self, q56) -> bool:
         if self._client is None:
