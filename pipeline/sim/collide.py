@@ -106,15 +106,16 @@ def _box_box(ca, Ra, ha, cb, Rb, hb):  # pragma: no cover (compiled)
 @njit(cache=True)
 def first_uncertain(frames, start, pre, grp_frame, grp_c, grp_r, grp_lo, grp_hi, grp_world,
                     sph_c, sph_r, pair_a, pair_b, rbox_frame, rbox_T, rbox_h, rbox_r,
-                    box_c, box_R, box_h, box_r, og_c, og_r, og_lo, og_hi, obs_c,
-                    obs_r):  # pragma: no cover (compiled)
+                    rbox_pair_b, rbox_pair_g, box_c, box_R, box_h, box_r, og_c, og_r, og_lo,
+                    og_hi, obs_c, obs_r):  # pragma: no cover (compiled)
     """The first configuration n >= ``start`` (its frames: frames[n], F × 3 × 4) that may
     collide, or N when none may; ``pre[n]`` marks configurations already in doubt.
 
     Groups with ``grp_world`` are tested against the world's boxes and sphere groups
     (og_*: bounding sphere and range of obs_c / obs_r); the group pairs (pair_a[k],
-    pair_b[k]) against each other; the robot boxes against the world.  Spheres of group
-    g are sph_c[grp_lo[g]:grp_hi[g]] in the group's frame.
+    pair_b[k]) against each other; the robot boxes against the world, and robot box
+    rbox_pair_b[k] against group rbox_pair_g[k].  Spheres of group g are
+    sph_c[grp_lo[g]:grp_hi[g]] in the group's frame.
     """
     G = grp_c.shape[0]
     S = sph_c.shape[0]
@@ -189,6 +190,17 @@ def first_uncertain(frames, start, pre, grp_frame, grp_c, grp_r, grp_lo, grp_hi,
             for u in range(obs_c.shape[0]):
                 if _sphere_box(obs_c[u], obs_r[u], cw, Rw, rbox_h[b]):
                     return n
+            for k in range(rbox_pair_b.shape[0]):
+                if rbox_pair_b[k] != b:
+                    continue
+                g = rbox_pair_g[k]
+                dx, dy, dz = cw[0] - gw[g, 0], cw[1] - gw[g, 1], cw[2] - gw[g, 2]
+                reach = rbox_r[b] + grp_r[g]
+                if dx * dx + dy * dy + dz * dz >= reach * reach:
+                    continue
+                for s in range(grp_lo[g], grp_hi[g]):
+                    if _sphere_box(sw[s], sph_r[s], cw, Rw, rbox_h[b]):
+                        return n
     return frames.shape[0]
 
 

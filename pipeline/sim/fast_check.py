@@ -150,32 +150,11 @@ class World:
                    np.array([g[2] for g in groups]).reshape(-1, 3),
                    np.array([g[3] for g in groups]))
 
-    def without(self, index: int) -> World:
-        keep = np.arange(len(self.box_c)) != index
-        return World(self.box_c[keep], self.box_R[keep], self.box_h[keep], self.sph_c,
-                     self.sph_r, [b for i, b in enumerate(self.bodies) if i != index],
-                     self.og_lo, self.og_hi, self.og_c, self.og_r)
-
 
 def _bounding(centres: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, float]:
     """A sphere holding the spheres (centres, radii)."""
     centre = (centres.min(axis=0) + centres.max(axis=0)) / 2
     return centre, float(np.max(np.linalg.norm(centres - centre, axis=1) + radii))
-
-
-def box_spheres(half, margin: float) -> tuple[np.ndarray, np.ndarray]:
-    """Spheres (centres (K, 3) in the box's frame, radii (K,)) covering a box of half
-    extents ``half``: a row along its longest axis, each sphere wider than the box's
-    cross-section so that neighbours overlap over the whole section."""
-    half = np.asarray(half, float)
-    axis = int(np.argmax(half))
-    r = float(np.linalg.norm(np.delete(half, axis)))
-    R = 1.25 * r + 1e-4
-    spacing = 2 * np.sqrt(R * R - r * r)
-    count = int(np.ceil(2 * half[axis] / spacing)) + 1
-    centres = np.zeros((count, 3))
-    centres[:, axis] = np.linspace(-half[axis], half[axis], count)
-    return centres, np.full(count, R + margin)
 
 
 @dataclass
@@ -195,15 +174,18 @@ class Robot:
     rbox_frame: np.ndarray
     rbox_T: np.ndarray
     rbox_h: np.ndarray
+    rbox_pair_b: np.ndarray  # robot box rbox_pair_b[k] is tested against group
+    rbox_pair_g: np.ndarray  # rbox_pair_g[k]
 
     def __post_init__(self):
         self.rbox_r = np.linalg.norm(self.rbox_h, axis=1)
 
     @classmethod
-    def build(cls, groups, pairs=(), boxes=()) -> Robot:
+    def build(cls, groups, pairs=(), boxes=(), box_pairs=()) -> Robot:
         """``groups``: (frame, centres (K, 3), radii (K,), tested against the world);
         ``pairs``: group index pairs tested against each other; ``boxes``: (frame,
-        4 × 4 pose in it, half extents)."""
+        4 × 4 pose in it, half extents); ``box_pairs``: (box, group) tested against each
+        other."""
         groups = list(groups) or [(0, np.zeros((1, 3)), np.array([-1.0]), False)]
         lo = np.cumsum([0] + [len(g[2]) for g in groups])
         bounds = [_bounding(c, r) for _, c, r, _ in groups]
@@ -216,7 +198,9 @@ class Robot:
                    np.concatenate([g[1] for g in groups]), np.concatenate([g[2] for g in groups]),
                    pa, pbb, np.array([b[0] for b in boxes], dtype=np.int64),
                    np.array([b[1][:3] for b in boxes]).reshape(-1, 3, 4),
-                   np.array([b[2] for b in boxes]).reshape(-1, 3))
+                   np.array([b[2] for b in boxes]).reshape(-1, 3),
+                   np.array([p[0] for p in box_pairs], dtype=np.int64),
+                   np.array([p[1] for p in box_pairs], dtype=np.int64))
 
     def first(self, frames: np.ndarray, world: World, start: int = 0,
               pre: np.ndarray | None = None) -> int:
@@ -227,7 +211,8 @@ class Robot:
         return int(collide.first_uncertain(
             frames, start, pre, self.grp_frame, self.grp_c, self.grp_r, self.grp_lo,
             self.grp_hi, self.grp_world, self.sph_c, self.sph_r, self.pair_a, self.pair_b,
-            self.rbox_frame, self.rbox_T, self.rbox_h, self.rbox_r,
+            self.rbox_frame, self.rbox_T, self.rbox_h, self.rbox_r, self.rbox_pair_b,
+            self.rbox_pair_g,
             world.box_c, world.box_R, world.box_h, world.box_r, world.og_c, world.og_r,
             world.og_lo, world.og_hi, world.sph_c, world.sph_r))
 
@@ -322,21 +307,16 @@ def _arm_frames_fn(base: np.ndarray):
     return frames
 
 
-def _held_parts(client: int, held: int, rel: np.ndarray, frame: int):
-    """The box body ``held`` whose pose in robot frame ``frame`` is ``rel`` (4 × 4), as
-    (sphere groups covering it, in chunks of four for tight bounds, for contacts with the
-    arm; the box itself, for contacts with the world), or None when it is not one box."""
+def _held_box(client: int, held: int, rel: np.ndarray, frame: int):
+    """The box body ``held`` whose pose in robot frame ``frame`` is ``rel`` (4 × 4), as a
+    robot box (frame, pose, half extents), or None when it is not one box."""
     if pb.getNumJoints(held, physicsClientId=client):
         return None
     shapes = pb.getCollisionShapeData(held, -1, physicsClientId=client)
     if len(shapes) != 1 or shapes[0][2] != pb.GEOM_BOX:
         return None
     T = rel @ _frame(shapes[0][5], shapes[0][6])
-    half = np.asarray(shapes[0][3], float) / 2
-    c, r = box_spheres(half, MARGIN)
-    c = c @ T[:3, :3].T + T[:3, 3]
-    groups = [(frame, c[k:k + 4], r[k:k + 4], False) for k in range(0, len(c), 4)]
-    return groups, (frame, T, half + BOX_MARGIN)
+    return frame, T, np.asarray(shapes[0][3], float) / 2 + BOX_MARGIN
 
 
 def wrist_table(ignored_pairs) -> wrist.WristTable:
@@ -368,14 +348,11 @@ def _arm_robot(client: int, arm_body: int, ignored_pairs, held, hand_links):
     if held is None:
         return _panda_robot(ignored), frames, True
     groups, index, pairs = _panda_parts(ignored)
-    parts = _held_parts(client, held[0], held[1], spheres.FRAME_OF_LINK[6])
-    if parts is None:
+    box = _held_box(client, held[0], held[1], spheres.FRAME_OF_LINK[6])
+    if box is None:
         return None, frames, False
-    first = len(groups)
-    groups = list(groups) + parts[0]
-    pairs = list(pairs) + [(g, index[link]) for g in range(first, len(groups)) for link in index
-                           if link not in hand_links]
-    return Robot.build(groups, pairs, boxes=[parts[1]]), frames, True
+    arm_links = [(0, index[link]) for link in index if link not in hand_links]
+    return Robot.build(groups, pairs, boxes=[box], box_pairs=arm_links), frames, True
 
 
 def arm_checker(client: int, arm_body: int, ignored_pairs, exact, *, held=None,
@@ -391,16 +368,12 @@ def arm_checker(client: int, arm_body: int, ignored_pairs, exact, *, held=None,
     robot, frames, ok = _arm_robot(client, arm_body, ignored_pairs, held, hand_links)
     world = World.read(client, {arm_body} | ({held[0]} if held is not None else set()))
     certified = ok and world is not None
-    for body in fixed_robot:  # a fixed part of the robot is a box of the world ...
-        if not certified:
-            break
-        if body not in world.bodies:
-            certified = False
-            break
-        # ... which must not touch the rest of the world (pybullet: a collision always)
-        k = world.bodies.index(body)
-        probe = Robot.build([], boxes=[(0, _pose(world, k), world.box_h[k] + BOX_MARGIN)])
-        certified = probe.first(np.eye(4)[None, None, :3], world.without(k)) == 1
+    if certified and fixed_robot:
+        # a fixed part of the robot is a box of the world, and must not touch the rest of
+        # the world (pybullet would report a collision for every row): asked once, exactly
+        robot_bodies = {arm_body, *fixed_robot} | ({held[0]} if held is not None else set())
+        certified = all(body in world.bodies for body in fixed_robot) and not any(
+            _touches_world(client, body, robot_bodies) for body in fixed_robot)
     table = wrist_table(ignored_pairs)
     return SphereChecker(robot, world, frames, exact, certified, also=table.uncertain)
 
@@ -426,10 +399,10 @@ def base_checker(client: int, arm_body: int, platform: int, base_pose: np.ndarra
               for link in spheres.LINKS]
     boxes = [(0, to_base @ box[0], box[1] + BOX_MARGIN)]
     if held is not None:
-        parts = _held_parts(client, held[0], held[1], 0)
-        if parts is None:
+        box = _held_box(client, held[0], held[1], 0)
+        if box is None:
             return SphereChecker(None, None, None, exact, certified=False)
-        boxes.append(parts[1])
+        boxes.append(box)
     robot = Robot.build(groups, boxes=boxes)
     world = World.read(client, {arm_body, platform} | ({held[0]} if held is not None else set()))
 
@@ -438,6 +411,12 @@ def base_checker(client: int, arm_body: int, platform: int, base_pose: np.ndarra
         collide.planar_frames(states, psi_scale, out)
         return out
     return SphereChecker(robot, world, base_frames, exact)
+
+
+def _touches_world(client: int, body: int, robot_bodies) -> bool:
+    pb.performCollisionDetection(physicsClientId=client)
+    return any(p[8] < 0 and p[2] not in robot_bodies
+               for p in pb.getContactPoints(bodyA=body, physicsClientId=client))
 
 
 def internal_clearance(robot) -> float:
@@ -459,12 +438,6 @@ def internal_clearance(robot) -> float:
                 if not (other == arm and p[4] in robot.hand_links):
                     out = min(out, p[8])
     return out
-
-
-def _pose(world: World, k: int) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = world.box_R[k], world.box_c[k]
-    return T
 
 
 def certified(check):

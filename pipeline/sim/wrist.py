@@ -44,7 +44,8 @@ class WristTable:
         q = np.ascontiguousarray(q, float)
         pre = np.empty(len(q), dtype=np.bool_)
         if collide.wrist_cells(q, self.lower, STEP, self.state, pre):
-            idx = np.rint((q[:, 5:7] - self.lower) / STEP).astype(np.int64)
+            # the kernel's cell arithmetic, so that the cells it asks for get filled
+            idx = np.floor((q[:, 5:7] - self.lower) / STEP + 0.5).astype(np.int64)
             idx = np.clip(idx, 0, np.array(self.state.shape) - 1)
             for i, k in {tuple(c) for c in idx if self.state[c[0], c[1]] == 0}:
                 self.state[i, k] = 1 if self._free(self.lower + STEP * np.array([i, k])) else 2
