@@ -254,3 +254,37 @@ def test_boxes_touching_the_platform_make_a_mobile_checker_exact():
         assert not FC.certified(robot.arm_check).certified
     finally:
         scene.close()
+
+
+def _numpy_quaternion(R):
+    """The quaternion of the previous revision (numpy scalars), kept as the reference."""
+    t = np.trace(R)
+    k = int(np.argmax([t, R[0, 0], R[1, 1], R[2, 2]]))
+    if k == 0:
+        w = np.sqrt(1 + t) / 2
+        q = [(R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w),
+             (R[1, 0] - R[0, 1]) / (4 * w), w]
+    else:
+        i = k - 1
+        j, m = (i + 1) % 3, (i + 2) % 3
+        v = np.sqrt(max(0.0, 1 + 2 * R[i, i] - t)) / 2
+        q = [0.0, 0.0, 0.0, (R[m, j] - R[j, m]) / (4 * v)]
+        q[i] = v
+        q[j] = (R[j, i] + R[i, j]) / (4 * v)
+        q[m] = (R[m, i] + R[i, m]) / (4 * v)
+    q = np.asarray(q)
+    return q / np.linalg.norm(q)
+
+
+def test_quaternions_are_bitwise_those_of_the_previous_revision():
+    """Stored entries replay only if pybullet gets the very same poses."""
+    from scipy.spatial.transform import Rotation
+
+    from pipeline.sim.world import quaternion, rot_z
+
+    rng = np.random.default_rng(9)
+    mats = list(Rotation.random(3000, random_state=10).as_matrix())
+    mats += [rot_z(a) for a in rng.uniform(-4, 4, 3000)]
+    mats += [np.diag(d) for d in ([1.0, -1, -1], [-1.0, 1, -1], [-1.0, -1, 1], [1.0, 1, 1])]
+    for R in mats:
+        np.testing.assert_array_equal(quaternion(R), _numpy_quaternion(R))
