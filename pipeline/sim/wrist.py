@@ -7,20 +7,29 @@ distances of those link pairs are tabulated once over a grid of (q5, q6).  Betwe
 points a distance changes by at most ρ5·|Δq5| + ρ6·|Δq6| (ρj: how far the moving
 geometry reaches from joint j's axis, bounded by distances from the joint's origin), so a
 configuration is certified free of these contacts when its nearest grid point's distance
-exceeds that bound for half a grid step, plus ``SLACK``.  Cells are computed when first
-needed (a planning process visits a few thousand of the 38,000).
+exceeds that bound for half a grid step, plus ``SLACK``.
+
+The table ships with the package (``wrist_table.npz``, made by ``python -m
+pipeline.sim.wrist``), stamped with what it was computed from (pybullet's version, the
+URDF and meshes, the grid, the pairs, the bound).  When the stamp does not match, cells
+are computed when first needed instead (about 0.4 ms each; a planning process visits a
+few thousand of the 38,000).
 """
 
 from __future__ import annotations
 
 import atexit
 import functools
+import hashlib
+import json
+from pathlib import Path
 
 import numpy as np
 import pybullet as pb
 
 from pipeline.sim import collide, spheres
 
+TABLE_FILE = Path(__file__).with_name("wrist_table.npz")
 #: link pairs whose relative pose depends on q5 and q6 only (forearm, wrist vs the rest)
 PAIRS = tuple((a, b) for a in (4, 5) for b in (6, 8, 9, 10) if (a, b) != (5, 6))
 STEP = 0.025  # radians between grid points
@@ -38,6 +47,25 @@ class WristTable:
         self.state = np.zeros(shape, dtype=np.int8)  # 0 unknown, 1 free, 2 maybe in contact
         self._client = None
         self._body = None
+        self.stamp = json.dumps({
+            "pybullet": pb.getAPIVersion(), "model": _model_digest(), "step": STEP,
+            "slack": SLACK, "pairs": self.pairs, "bound": round(float(bound), 12),
+            "lower": self.lower.round(12).tolist(), "shape": [int(v) for v in shape]},
+            sort_keys=True)
+        if TABLE_FILE.is_file():
+            with np.load(TABLE_FILE) as stored:
+                if str(stored["stamp"]) == self.stamp:
+                    self.state = stored["state"].astype(np.int8)
+
+    def fill(self) -> None:
+        """Compute every cell still unknown."""
+        for i, k in zip(*np.nonzero(self.state == 0), strict=True):
+            self.state[i, k] = 1 if self._free(self.lower + STEP * np.array([i, k])) else 2
+
+    def save(self, path=None) -> Path:
+        out = Path(path or TABLE_FILE)
+        np.savez_compressed(out, state=self.state, stamp=np.array(self.stamp))
+        return out
 
     def uncertain(self, q: np.ndarray) -> np.ndarray:
         """(N,) whether configurations ``q`` (N, 7) may have a wrist self-contact."""
@@ -100,3 +128,22 @@ def wrist_table(ignored: frozenset, lower5: float, upper5: float, lower6: float,
     model = spheres.panda_spheres(margin=0.0)
     bound = (_reach(model, (5, 6, 8, 9, 10), 5) + _reach(model, (6, 8, 9, 10), 6)) * STEP / 2
     return WristTable(pairs, (lower5, lower6), (upper5, upper6), bound + SLACK)
+
+
+def _model_digest() -> str:
+    """SHA-256 of the URDF and the collision meshes the table was computed from."""
+    h = hashlib.sha256((spheres._data_path() / spheres.URDF).read_bytes())
+    for _, (path, _) in sorted(spheres.panda_chain().meshes.items()):
+        h.update(Path(path).read_bytes())
+    return h.hexdigest()
+
+
+if __name__ == "__main__":  # python -m pipeline.sim.wrist: compute and store the table
+    from pipeline.sim import panda as P
+    from pipeline.sim.world import connect
+
+    client = connect()
+    arm = P.Panda(client, (0.0, 0.0, 0.0))
+    table = wrist_table(arm.ignored_pairs, P.LOWER[5], P.UPPER[5], P.LOWER[6], P.UPPER[6])
+    table.fill()
+    print(f"{table.save()}: {table.state.size} cells, {np.mean(table.state == 1):.1%} free")
