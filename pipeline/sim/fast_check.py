@@ -8,8 +8,7 @@ at once.  The robot's spheres cover its collision geometry, so a row the pre-che
 is collision-free for pybullet too; the other rows are confirmed with the exact check, in
 order, and the first confirmed collision ends the call.  Hence the answer *and the count*
 equal the exact checker's: planners take the same branches and find the same paths, and
-stored entries replay under either setting.  Single rows go straight to the exact check
-(the pre-check only pays over many rows).
+stored entries replay under either setting.
 
 The world is read from the pybullet client when a checker is made (boxes as oriented
 boxes, other Pandas as spheres at their joint states) and assumed fixed while it is used:
@@ -279,7 +278,7 @@ class SphereChecker:
         states = np.atleast_2d(states)
         n = len(states)
         self.stats["rows"] += n
-        if n == 1 or not self.certified:
+        if not self.certified:
             for k in range(n):
                 self.stats["exact"] += 1
                 if self.exact(states[k]):
