@@ -2,7 +2,7 @@
 
     python benchmarks/bench_loocv.py [--repeats 3] [--naive-folds 12]
 
-1. Full LOOCV of box, static, rand and doo with k = m on a synthetic 1800 x 162 matrix
+1. Full LOOCV of box, eips, static, rand and doo with k = m on a synthetic 1800 x 162 matrix
    shaped like the paper's grasp-and-arm data, beside the naive implementation of
    tests/reference.py (refit mu and Sigma per fold, eq. 2 solved afresh with
    numpy.linalg.solve at every step), timed on a few folds and extrapolated to all n.
@@ -34,7 +34,7 @@ from box_core.failure import fill_failures  # noqa: E402
 from box_core.synthetic import score_matrix  # noqa: E402
 from tests import reference  # noqa: E402
 
-SELECTORS = ("box", "static", "rand", "doo")
+SELECTORS = ("box", "eips", "static", "rand", "doo")
 
 
 def timed(fn, repeats):
@@ -46,16 +46,19 @@ def timed(fn, repeats):
     return statistics.median(times), out
 
 
-def naive_fold(D, features, name, i, k, seed):
+def naive_fold(D, features, name, i, k, seed, feasible=None, times=None):
     """One fold of the naive evaluator (the refit is inside reference.*_order)."""
     train, truth = np.delete(D, i, axis=0), D[i]
     if name == "box":
         return reference.box_order(train, truth, k)
+    if name == "eips":
+        return reference.eips_order(train, np.delete(feasible, i, axis=0),
+                                    np.delete(times, i, axis=0), truth, k)
     if name == "static":
         return reference.static_order(train, k)
     if name == "rand":
         return reference.rand_order(D.shape[1], k, (seed, i))
-    return reference.doo_order(truth, features, k, (seed, i))
+    return reference.doo_order(truth, features, k, (seed, i), unit=np.abs(D).max())
 
 
 def paper_scale(repeats: int, naive_folds: int) -> None:
@@ -83,7 +86,8 @@ def paper_scale(repeats: int, naive_folds: int) -> None:
     naive_per, agree = {}, True
     for name in SELECTORS:
         start = time.perf_counter()
-        orders = [naive_fold(D, data.features, name, int(i), m, 0) for i in folds]
+        orders = [naive_fold(D, data.features, name, int(i), m, 0, data.feasible, data.times)
+                  for i in folds]
         naive_per[name] = (time.perf_counter() - start) / len(folds) * n
         agree &= bool(np.array_equal(np.array(orders), result.order[name][folds]))
     naive_s = sum(naive_per.values())
@@ -118,9 +122,10 @@ def live_steps(repeats: int) -> None:
     D = fill_failures(data.scores, data.feasible, -20.0)
     train, truth = D[:-1], D[-1]
     print("== live selector on one new instance, trained on 1799 x 162, all 162 steps")
-    for name in ("box", "pembo", "static", "doo"):
+    extra = {"features": data.features, "feasible": data.feasible[:-1], "times": data.times[:-1]}
+    for name in ("box", "eips", "pembo", "static", "doo"):
         def run(name=name):
-            sel = box_core.make_selector(name, train, features=data.features)
+            sel = box_core.make_selector(name, train, **extra)
             start = time.perf_counter()
             for _ in range(truth.size):
                 j = sel.propose()
@@ -128,8 +133,8 @@ def live_steps(repeats: int) -> None:
             return time.perf_counter() - start
 
         steps = statistics.median(run() for _ in range(repeats)) / truth.size
-        build, _ = timed(lambda name=name: box_core.make_selector(
-            name, train, features=data.features), repeats)
+        build, _ = timed(lambda name=name: box_core.make_selector(name, train, **extra),
+                         repeats)
         print(f"   {name:7s} {steps * 1e6:7.1f} us per step, {build * 1e3:6.1f} ms to build "
               "(fit the prior)")
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import sys
 import tempfile
 import time
@@ -31,7 +30,7 @@ from pipeline.store import ScoreStore
 def compose_cfg(store: Path, overrides: list[str]):
     with initialize_config_dir(config_dir=str(configs.CONF_DIR), version_base="1.3"):
         return compose(config_name="config", overrides=[f"store.path={store}", "progress=false",
-                                                        *overrides])
+                                                        "domain=planar", *overrides])
 
 
 def prepared(store: Path, overrides: list[str], console: Console) -> None:
@@ -49,7 +48,8 @@ def timed_scores(store: Path, overrides: list[str], console: Console) -> tuple[f
     try:
         run.open_for_writing()
         if run.store.has("scores/done"):  # start from an empty scores group each time
-            shutil.rmtree(store / "scores")
+            run.store.remove("scores")
+            run.store.remove("integrity/scores")
             run.store.forget_stage("scores")
         t0 = time.perf_counter()
         _ = run.client

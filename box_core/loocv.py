@@ -21,7 +21,14 @@ from box_core import validation
 from box_core.failure import RULES, fill_failures
 from box_core.failure import failure_value as _failure_value
 from box_core.prior import Prior
-from box_core.selectors import FoldContext, Policy, check_selector
+from box_core.selectors import (
+    FoldContext,
+    Policy,
+    TrainingOutcomes,
+    check_selector,
+    score_unit,
+    standardise,
+)
 from box_core.summary import Summary, summarize
 
 DEFAULT_SELECTORS = ("box", "static", "rand", "doo")
@@ -80,6 +87,7 @@ def loocv(
     failure_rule: str = "magnitude",
     time_grid=None,
     measure_overhead: bool = True,
+    forbidden=None,
 ) -> LoocvResult:
     """Leave-one-out evaluation of ``selectors`` on a score matrix (n x m, higher is better).
 
@@ -90,12 +98,26 @@ def loocv(
     selector name to its parameters, e.g. ``{"box": {"c": 1.0}}``.  Fold i seeds its random
     choices with ``(seed, i)``.  ``measure_overhead=False`` leaves the selectors' compute time
     out of the times, which makes the result fully deterministic.
+
+    ``forbidden`` (n x m bool): columns held-out row i may not try, e.g. the constraints
+    extracted from row i's own raw solution (which are feasible for row i by
+    construction, so trying them would leak the answer).  Every selector, the oracles
+    included, treats them as already tried, and a row's eligibility and optimum count only
+    its allowed columns.  Every row gets the same number of tries, so ``k`` is capped at m
+    minus the largest number of columns hidden from one row.
+
+    Selectors see the scores through :func:`~box_core.selectors.standardise`, so the result
+    is the same for scores in any positive unit.
     """
     setup = _Setup.check(scores, times, feasible, selectors, k, features, params,
-                         failure_rule, min_rows=3)
-    prior = Prior.fit(setup.D)
+                         failure_rule, min_rows=3, forbidden=forbidden)
+    prior = Prior.fit(setup.Dn)
     rows = np.arange(setup.D.shape[0])
-    return setup.evaluate(prior.folds, rows, seed, time_grid, measure_overhead)
+
+    def outcomes(held_out):
+        return TrainingOutcomes.of(setup.Dn, setup.feas, setup.T, held_out)
+
+    return setup.evaluate(prior.folds, outcomes, rows, seed, time_grid, measure_overhead)
 
 
 def holdout(
@@ -113,14 +135,16 @@ def holdout(
     failure_rule: str = "magnitude",
     time_grid=None,
     measure_overhead: bool = True,
+    forbidden=None,
 ) -> LoocvResult:
     """Like :func:`loocv`, but every row of ``test`` is run with the one prior fitted on the
     rows ``train`` (learning curves, nested cross-validation).  The result's rows are the
     ``test`` rows, in that order; row i of D still seeds its random choices with
-    ``(seed, i)``, and the failure value comes from the whole matrix, as in :func:`loocv`.
+    ``(seed, i)``, and the failure value comes from the whole matrix, as in :func:`loocv`;
+    ``forbidden`` (n x m) as in :func:`loocv` (only the ``test`` rows' masks matter).
     """
     setup = _Setup.check(scores, times, feasible, selectors, k, features, params,
-                         failure_rule, min_rows=2)
+                         failure_rule, min_rows=2, forbidden=forbidden)
     n = setup.D.shape[0]
     train = _row_indices(train, n, "train")
     test = _row_indices(test, n, "test")
@@ -130,9 +154,14 @@ def holdout(
         raise ValueError("test is empty")
     if np.intersect1d(train, test).size:
         raise ValueError("train and test share rows")
-    prior = Prior.fit(setup.D[train])
-    return setup.evaluate(lambda rows: prior.batch(rows.size), test, seed, time_grid,
-                          measure_overhead)
+    prior = Prior.fit(setup.Dn[train])
+
+    def outcomes(held_out):
+        return TrainingOutcomes.of(setup.Dn[train], setup.feas[train], setup.T[train],
+                                   np.full(held_out.size, -1))
+
+    return setup.evaluate(lambda rows: prior.batch(rows.size), outcomes, test, seed,
+                          time_grid, measure_overhead)
 
 
 def _row_indices(rows, n: int, name: str) -> np.ndarray:
@@ -156,6 +185,7 @@ class _Setup:
     """Checked inputs shared by :func:`loocv` and :func:`holdout`."""
 
     D: np.ndarray  # failures filled with the failure value
+    Dn: np.ndarray  # standardise(D, score_unit(D)): what the selectors see
     T: np.ndarray
     feas: np.ndarray
     d: float
@@ -164,10 +194,11 @@ class _Setup:
     classes: dict
     params: dict
     k: int
+    forbidden: np.ndarray | None
 
     @classmethod
     def check(cls, scores, times, feasible, selectors, k, features, params, failure_rule,
-              min_rows):
+              min_rows, forbidden=None):
         D = validation.score_matrix(scores, min_rows=min_rows)
         n, m = D.shape
         if times is None:
@@ -185,9 +216,18 @@ class _Setup:
             raise ValueError("selectors is empty")
         if len(set(names)) != len(names):
             raise ValueError(f"selectors has duplicates: {names}")
-        k = m if k is None else k
+        if forbidden is not None:
+            forbidden = validation.boolean_matrix(forbidden, D.shape, name="forbidden")
+            if forbidden.all(axis=1).any():
+                row = int(np.flatnonzero(forbidden.all(axis=1))[0])
+                raise ValueError(f"forbidden hides every column from row {row}")
+            if not forbidden.any():
+                forbidden = None
+        allowed = m if forbidden is None else m - int(forbidden.sum(axis=1).max())
+        k = allowed if k is None else k
         if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 1 <= k <= m:
             raise ValueError(f"k must be an integer between 1 and m = {m}, got {k!r}")
+        k = min(int(k), allowed)
         params = dict(params or {})
         stray = set(params) - set(names)
         if stray:
@@ -206,17 +246,23 @@ class _Setup:
             feas = validation.boolean_matrix(feasible, D.shape, name="feasible")
             d = _failure_value(D, feas, failure_rule)
             D = fill_failures(D, feas, d)
-        return cls(D=D, T=T, feas=feas, d=d, theta=theta, names=names, classes=classes,
-                   params=params, k=int(k))
+        return cls(D=D, Dn=standardise(D, score_unit(D)), T=T, feas=feas, d=d, theta=theta,
+                   names=names, classes=classes, params=params, k=int(k), forbidden=forbidden)
 
-    def evaluate(self, fold_priors, test, seed, time_grid, measure) -> LoocvResult:
-        """Run every selector on the ``test`` rows; ``fold_priors(rows)`` gives their priors."""
+    def evaluate(self, fold_priors, fold_outcomes, test, seed, time_grid,
+                 measure) -> LoocvResult:
+        """Run every selector on the ``test`` rows; ``fold_priors(rows)`` and
+        ``fold_outcomes(rows)`` give their priors and training outcomes."""
         D, T, feas, k = self.D[test], self.T[test], self.feas[test], self.k
+        hidden = None if self.forbidden is None else self.forbidden[test]
+        folds = _Folds(fold_priors, fold_outcomes, self.Dn[test], T, feas, hidden, self.theta,
+                       test, seed, k)
         runs = {
-            name: _run(cls, dict(self.params.get(name, {})), fold_priors, D, test,
-                       self.theta, seed, k, measure)
+            name: _run(cls, dict(self.params.get(name, {})), folds, measure)
             for name, cls in self.classes.items()
         }
+        if hidden is not None:
+            feas = feas & ~hidden
         rows = np.arange(test.size)[:, None]
         totals = {  # cumulative time after each try: planning plus the selector's own time
             name: np.cumsum(T[rows, order] + overhead, axis=1)
@@ -228,7 +274,7 @@ class _Setup:
             k=k,
             failure_value=self.d,
             eligible=feas.any(axis=1),
-            optimal_score=D.max(axis=1),
+            optimal_score=(D if hidden is None else np.where(hidden, -np.inf, D)).max(axis=1),
             time_grid=grid,
         )
         for name, (order, overhead) in runs.items():
@@ -248,29 +294,53 @@ class _Setup:
         return result
 
 
-def _run(cls: type[Policy], kwargs, fold_priors, D, test, features, seed, k, measure):
-    """One selector over the held-out rows ``test`` (``D`` holds just their scores):
-    (order (B, k), overhead seconds (B, k))."""
-    n, m = D.shape
+@dataclass(frozen=True, eq=False)
+class _Folds:
+    """What every selector's run over the held-out rows shares (``Dn``, ``T``, ``feas``
+    and ``hidden`` hold just those rows)."""
+
+    priors: object  # rows -> FoldPriors
+    outcomes: object  # rows -> TrainingOutcomes
+    Dn: np.ndarray
+    T: np.ndarray
+    feas: np.ndarray
+    hidden: np.ndarray | None
+    features: np.ndarray | None
+    test: np.ndarray
+    seed: int
+    k: int
+
+    def context(self, rows: np.ndarray, cls: type[Policy]) -> FoldContext:
+        held = self.test[rows]
+        return FoldContext(
+            prior=self.priors(held),
+            seeds=[(self.seed, int(i)) for i in held],
+            features=self.features,
+            true_scores=self.Dn[rows],
+            horizon=self.k,
+            outcomes=self.outcomes(held) if cls.needs_outcomes else None,
+            true_times=self.T[rows],
+            true_feasible=self.feas[rows],
+            forbidden=None if self.hidden is None else self.hidden[rows],
+        )
+
+
+def _run(cls: type[Policy], kwargs, folds: _Folds, measure):
+    """One selector over the held-out rows: (order (B, k), overhead seconds (B, k))."""
+    n, m = folds.Dn.shape
+    k = folds.k
     order = np.full((n, k), -1, dtype=np.intp)
     overhead = np.zeros((n, k))
     batch = cls.fold_batch(n, m, k)
     for start in range(0, n, batch):
         rows = np.arange(start, min(n, start + batch))
         clock = time.perf_counter()
-        ctx = FoldContext(
-            prior=fold_priors(test[rows]),
-            seeds=[(seed, int(i)) for i in test[rows]],
-            features=features,
-            true_scores=D[rows],
-            horizon=k,
-        )
-        policy = cls(ctx, **kwargs)
+        policy = cls(folds.context(rows, cls), **kwargs)
         setup = time.perf_counter() - clock
         for t in range(k):
             clock = time.perf_counter()
             cols = policy.propose()
-            policy.update(cols, D[rows, cols])
+            policy.update(cols, folds.Dn[rows, cols])
             overhead[rows, t] = (time.perf_counter() - clock) / rows.size
             order[rows, t] = cols
         overhead[rows, 0] += setup / rows.size

@@ -17,7 +17,9 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+from scipy import sparse
 from scipy.spatial.distance import cdist
+from scipy.special import ndtr
 
 from box_core import validation
 from box_core.gaussian import GaussianPosterior, argmax_untried
@@ -41,8 +43,12 @@ def register(name: str):
 class FoldContext:
     """What a policy may know about its B instances before trying anything.
 
-    ``true_scores`` is the held-out truth, for the ORACLE only; ``seeds`` are entropy for
-    ``numpy.random.default_rng``, one per instance.
+    Scores here are in box_core's internal unit (the caller's scores divided by one positive
+    number, see :func:`score_unit`).  ``true_scores``, ``true_times`` and ``true_feasible``
+    (B, m) are the held-out truth, for the oracles only; ``seeds`` are entropy for
+    ``numpy.random.default_rng``, one per instance; ``outcomes`` are the training rows' times
+    and feasibility (for ``eips``); ``forbidden`` (B, m) marks columns an instance may never
+    try (leave-one-out without leakage), which every policy treats as tried from the start.
     """
 
     prior: FoldPriors
@@ -50,6 +56,10 @@ class FoldContext:
     features: np.ndarray | None = None
     true_scores: np.ndarray | None = None
     horizon: int | None = None  # how many tries are planned, if known (sizes buffers)
+    outcomes: TrainingOutcomes | None = None
+    true_times: np.ndarray | None = None
+    true_feasible: np.ndarray | None = None
+    forbidden: np.ndarray | None = None
 
     @property
     def size(self) -> int:
@@ -68,10 +78,14 @@ class Policy:
     defaults: ClassVar[dict] = {}
     needs_features: ClassVar[bool] = False
     needs_truth: ClassVar[bool] = False
+    needs_outcomes: ClassVar[bool] = False
 
     def __init__(self, ctx: FoldContext):
         self.ctx = ctx
-        self.tried = np.zeros((ctx.size, ctx.m), dtype=bool)
+        if ctx.forbidden is None:
+            self.tried = np.zeros((ctx.size, ctx.m), dtype=bool)
+        else:
+            self.tried = np.array(ctx.forbidden, dtype=bool, copy=True)
         self.t = 0
         self._rows = np.arange(ctx.size)
 
@@ -138,6 +152,25 @@ class Oracle(_OrderPolicy):
         super().__init__(ctx, _descending(ctx.true_scores))
 
 
+@register("fastest")
+class Fastest(_OrderPolicy):
+    """FASTEST, the time-optimal oracle: the true row's feasible columns by increasing time,
+    then its infeasible ones by increasing time (ties: lowest index).
+
+    Its time to first feasible plan is the least any selector can achieve on an instance:
+    the headroom of a domain, where ORACLE (best score first) shows the best plan's cost.
+    """
+
+    needs_truth = True
+
+    def __init__(self, ctx: FoldContext):
+        # infeasible columns sort after every feasible one whatever their time
+        key = np.where(ctx.true_feasible, 0.0, 1.0)
+        order = np.lexsort((np.arange(ctx.m)[None, :].repeat(ctx.size, 0), ctx.true_times,
+                            key), axis=1)
+        super().__init__(ctx, order)
+
+
 @register("box")
 class Box(Policy):
     """BOX (paper Algorithm 1): argmax of posterior mean + c * posterior std."""
@@ -177,40 +210,64 @@ class Box(Policy):
 
 @register("pembo")
 class PemBo(Box):
-    """PEM-BO (Wang, Kim and Kaelbling, NeurIPS 2018), GP-UCB with an estimated prior.
+    """PEM-BO (Wang, Kim and Kaelbling, NeurIPS 2018) as its authors ran it.
 
-    With N training rows and t observations on this instance, the conditioned variance is
-    scaled by (N - 1) / (N - t - 1), the unbiased estimator of the posterior variance, and
-    the UCB coefficient for iteration t' = t + 1 is
-
-        zeta = sqrt(6 (N - 3 + t' + 2 sqrt(t' L) + 2 L) / (delta N (N - t' - 1))) + sqrt(2 L),
-        L = log(4 / delta).
-
-    Both are only defined while N - t - 1 > 0; beyond (more observations than training rows
-    allow) the denominators are held at 1, an extension of ours, not of the paper.
+    GP-UCB with the estimated prior: with N training rows and t observations so far on this
+    instance, the conditioned posterior variance is multiplied once by (N - 1) / (N - t - 1)
+    (the unbiased estimate of the posterior variance; applied to the conditioned variance,
+    never compounded step after step) and the UCB coefficient is :func:`pembo_zeta` (t, N).
+    Where the factor's denominator N - t - 1 would fall below 1 it is held at 1.
     """
 
     defaults = {"delta": 0.01}
 
     def __init__(self, ctx: FoldContext, delta: float = 0.01):
-        if not 0 < delta < 1:
+        if not (isinstance(delta, int | float) and 0 < delta < 1):
             raise ValueError(f"delta must lie in (0, 1), got {delta!r}")
         super().__init__(ctx, c=0.0)
         self.delta = float(delta)
 
     def coefficient(self) -> float:
-        return pembo_zeta(self.t + 1, self.ctx.prior.n_train, self.delta)
+        return pembo_zeta(self.t, self.ctx.prior.n_train, self.delta)
 
     def variance_factor(self) -> float:
         N = self.ctx.prior.n_train
         return (N - 1) / max(N - self.t - 1, 1)
 
 
-def pembo_zeta(t: int, N: int, delta: float) -> float:
-    """PEM-BO's UCB coefficient at iteration ``t`` (1-based) with ``N`` training rows."""
-    L = math.log(4.0 / delta)
-    inner = 6.0 * (N - 3 + t + 2.0 * math.sqrt(t * L) + 2.0 * L)
-    return math.sqrt(max(inner, 0.0) / (delta * N * max(N - t - 1, 1))) + math.sqrt(2.0 * L)
+def pembo_margin(delta: float) -> int:
+    """The smallest r = N - t - 1 at which :func:`pembo_zeta`'s formula is defined:
+    r >= 2 (so N - t - 2 >= 1) and 2 sqrt(log(6 / delta) / r) < 1."""
+    r = max(2, math.floor(4.0 * math.log(6.0 / delta)) + 1)
+    while 2.0 * math.sqrt(math.log(6.0 / delta) / r) >= 1.0:  # guards float rounding
+        r += 1
+    return r
+
+
+def pembo_zeta(t: int, N: int, delta: float = 0.01) -> float:
+    """PEM-BO's UCB coefficient after ``t`` observations with ``N`` training rows.
+
+    The schedule of the authors' code (class ``AutomaticZetaUCB`` of their ``functions.py``),
+    with L6 = log(6 / delta):
+
+        iota_t = sqrt(6 (N - 2 + t + 2 sqrt(t L6) + 2 L6) / (delta N (N - t - 2)))
+        b_t    = L6 / (N - t - 1)
+        zeta_t = (iota_t + sqrt(2 log(3 / delta))) / sqrt(1 - 2 sqrt(b_t))
+
+    It is undefined once N - t - 2 <= 0 or 2 sqrt(b_t) >= 1, i.e. once r = N - t - 1 drops
+    below r_min = :func:`pembo_margin` (26 for delta = 0.01; the authors' code then produced
+    NaN and re-picked one index forever).  Our finite continuation: r is held at r_min in
+    both denominators (N - t - 2 becomes r_min - 1) while t keeps its value in the
+    numerator.  It agrees with the formula wherever that is defined, is continuous, finite
+    and non-decreasing in t, and for tiny N (N - 1 < r_min) gives a large coefficient,
+    i.e. mostly exploration, which is where the formula itself tends.
+    """
+    L6 = math.log(6.0 / delta)
+    r = max(N - t - 1, pembo_margin(delta))
+    iota = math.sqrt(6.0 * (N - 2 + t + 2.0 * math.sqrt(t * L6) + 2.0 * L6)
+                     / (delta * N * (r - 1)))
+    shrink = math.sqrt(1.0 - 2.0 * math.sqrt(L6 / r))
+    return (iota + math.sqrt(2.0 * math.log(3.0 / delta))) / shrink
 
 
 @register("doo")
@@ -232,7 +289,11 @@ class Doo(Policy):
         self.lam = float(lam)
         self._dist = cdist(ctx.features, ctx.features)
         self._bound = np.full((ctx.size, ctx.m), np.inf)
-        self._first = np.array([np.random.default_rng(s).integers(ctx.m) for s in ctx.seeds])
+        first = np.array([np.random.default_rng(s).integers(ctx.m) for s in ctx.seeds])
+        # a forbidden first pick moves on to the next allowed column (cyclically)
+        shift = np.argmin(np.take_along_axis(
+            self.tried, (first[:, None] + np.arange(ctx.m)) % ctx.m, axis=1), axis=1)
+        self._first = (first + shift) % ctx.m
         self._scale = np.zeros(ctx.size)
 
     def propose(self) -> np.ndarray:
@@ -246,8 +307,168 @@ class Doo(Policy):
         self._scale = np.maximum(self._scale, np.abs(scores))
 
 
-def check_selector(name: str, params: dict, *, features) -> type[Policy]:
-    """The policy class for ``name``, after checking its parameters and requirements."""
+@dataclass(frozen=True, eq=False)
+class TrainingOutcomes:
+    """The training rows' outcomes, which ``eips`` learns from besides the scores.
+
+    ``feasible`` and ``times`` (n, m) cover the rows the prior was fitted on; ``held_out``
+    (B,) names, per instance of the batch, one of those rows to leave out (its own row in
+    leave-one-out, whose prior is the rank-one downdate), or -1.  ``threshold``: an
+    observed score above it is a feasible plan (scores in the internal unit).
+    """
+
+    feasible: np.ndarray
+    times: np.ndarray
+    held_out: np.ndarray
+    threshold: float
+
+    @classmethod
+    def of(cls, scores: np.ndarray, feasible: np.ndarray, times: np.ndarray, held_out):
+        """Outcomes of training ``scores`` (internal unit, failures filled), with the
+        threshold halfway between the best failure and the worst feasible score."""
+        fails, oks = scores[~feasible], scores[feasible]
+        if not fails.size:
+            threshold = -math.inf
+        elif not oks.size:
+            threshold = math.inf
+        else:
+            threshold = 0.5 * (float(fails.max()) + float(oks.min()))
+        return cls(feasible=feasible, times=times,
+                   held_out=np.asarray(held_out, dtype=np.intp), threshold=threshold)
+
+
+@register("eips")
+class Eips(Policy):
+    """EIPS, expected improvement per second: the untried column with the best expected
+    gain per expected second of planning (after Snoek, Larochelle and Adams 2012), for this
+    discrete, correlated setting.
+
+    Feasibility model: the training rows, weighted by how well they agree with what this
+    instance has shown.  Row r starts with weight 1 (0 for a held-out row); each try of
+    column j multiplies it by ``mismatch`` when r's feasibility at j differs from the
+    observed one (``mismatch = 0``: only rows with exactly the observed pattern count; the
+    default 0.1 allows for the planner's own randomness: a sampling planner that runs out of
+    budget on one instance may succeed on a near-identical one).  With those weights w and
+    ``prior_rows`` = a pseudo-rows at the fold's column means pbar,
+
+        p_j = (sum_r w_r F[r, j] + a pbar_j) / (sum_r w_r + a)     P(feasible at j | tries)
+
+    the frequency of success among past instances that behaved like this one.  Why not the
+    Gaussian posterior for feasibility: feasibility is binary and mostly failures (98 % of
+    the entries of the authors' grasp matrix), which a Gaussian on scores models poorly,
+    while these frequencies are the exact predictive distribution of the empirical instance
+    distribution.  Only rows whose weight changes touch the sums, so a try costs
+    O(m + changed rows * m), the whole trace O((k + n) m) at most.
+
+    Cost model: tau_j = p_j s_j + (1 - p_j) f_j, where s_j and f_j are the mean times of
+    column j's feasible and infeasible training entries (over all training rows; the mean of
+    the whole column where one kind is missing).  Planning times are heavy-tailed (a failure
+    that exhausts the planner's budget costs 1000 times one refuted at IK), so per-instance
+    conditional time averages over the few agreeing rows are too noisy to rank by; the
+    outcome, which the history does predict, is what changes a try's expected cost most.
+
+    Gain: while nothing feasible has been found, p_j, so the ratio p_j / tau_j is the
+    classic optimal search order for independent tries (Kadane), here re-ranked after every
+    try.  After the first feasible plan, the expected improvement of the best score under
+    BOX's Gaussian posterior (all tries, failures at the failure value):
+    EI_j = s (z Phi(z) + phi(z)), z = (mu_j - best) / s, s the posterior std (EI_j =
+    max(mu_j - best, 0) when s = 0 or z >= :data:`Z_LIMIT`, 0 when z <= -Z_LIMIT), divided
+    by tau_j.  Ties go to the lowest index.
+    """
+
+    defaults = {"prior_rows": 1.0, "mismatch": 0.1}
+    needs_outcomes = True
+
+    def __init__(self, ctx: FoldContext, prior_rows: float = 1.0, mismatch: float = 0.1):
+        super().__init__(ctx)
+        if not (math.isfinite(prior_rows) and prior_rows > 0):
+            raise ValueError(f"prior_rows must be a finite number > 0, got {prior_rows!r}")
+        if not (math.isfinite(mismatch) and 0 <= mismatch < 1):
+            raise ValueError(f"mismatch must lie in [0, 1), got {mismatch!r}")
+        out = ctx.outcomes
+        self.a, self.rho = float(prior_rows), float(mismatch)
+        self._FT = np.ascontiguousarray(out.feasible.T)  # (m, n): a column's rows, contiguous
+        self._threshold = out.threshold
+        F = out.feasible.astype(np.float64)
+        self._Fm = F
+        n = F.shape[0]
+        own = out.held_out >= 0
+        mine = out.held_out[own]
+        self._w = np.ones((ctx.size, n))
+        self._w[np.flatnonzero(own), mine] = 0.0
+        self._live = self._w > 0  # rows whose weight can still change
+
+        def fold_sums(values):  # column sums over each fold's training rows, (B, m)
+            sums = np.repeat(values.sum(axis=0)[None, :], ctx.size, axis=0)
+            sums[own] -= values[mine]
+            return sums
+
+        self._sums = fold_sums(F)
+        self._mass = self._w.sum(axis=1)
+        self._pbar = self._sums / np.maximum(self._mass, 1.0)[:, None]
+        ok_n, ok_t = self._sums, fold_sums(out.times * F)
+        all_t = fold_sums(out.times)
+        fail_n = self._mass[:, None] - ok_n
+        mean_t = all_t / np.maximum(self._mass, 1.0)[:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            self._t_ok = np.where(ok_n > 0, ok_t / ok_n, mean_t)
+            self._t_fail = np.where(fail_n > 0, (all_t - ok_t) / fail_n, mean_t)
+        self._best = np.full(ctx.size, -np.inf)
+        self.posterior = GaussianPosterior(ctx.prior, capacity=ctx.horizon or 16)
+
+    fold_batch = Box.fold_batch
+
+    def expected(self) -> tuple[np.ndarray, np.ndarray]:
+        """(p, tau), each (B, m): probability of feasibility and expected time per column."""
+        p = (self._sums + self.a * self._pbar) / (self._mass + self.a)[:, None]
+        p = np.clip(p, 0.0, 1.0)
+        tau = np.maximum(p * self._t_ok + (1.0 - p) * self._t_fail, 1e-12)
+        return p, tau
+
+    def propose(self) -> np.ndarray:
+        gain, tau = self.expected()
+        found = np.flatnonzero(np.isfinite(self._best))
+        if found.size:
+            post = self.posterior
+            std = np.sqrt(np.maximum(post.var[found], 0.0))
+            gap = post.mean[found] - self._best[found, None]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                z = gap / std
+            zc = np.clip(np.nan_to_num(z), -Z_LIMIT, Z_LIMIT)  # no subnormals, no overflow
+            ei = std * (zc * ndtr(zc) + np.exp(-0.5 * zc * zc) / _SQRT_2PI)
+            ei = np.where(z > -Z_LIMIT, ei, 0.0)
+            gain[found] = np.where((std > 0) & (z < Z_LIMIT), ei, np.maximum(gap, 0.0))
+        return argmax_untried(gain / tau, self.tried, np.zeros(self.ctx.size))
+
+    def update(self, cols: np.ndarray, scores: np.ndarray) -> None:
+        super().update(cols, scores)
+        self.posterior.observe(cols, scores)
+        ok = scores > self._threshold
+        self._best = np.where(ok, np.maximum(self._best, scores), self._best)
+        differs = self._FT[cols] != ok[:, None]
+        differs &= self._live
+        b, r = np.divmod(np.flatnonzero(differs), differs.shape[1])
+        if b.size:
+            change = self._w[b, r] * (self.rho - 1.0)
+            self._w[b, r] += change
+            if self.rho == 0.0:
+                self._live[b, r] = False
+            delta = sparse.csr_matrix((change, (b, r)), shape=self._w.shape)
+            self._sums += delta @ self._Fm
+            self._mass += np.bincount(b, weights=change, minlength=self.ctx.size)
+
+
+_SQRT_2PI = math.sqrt(2.0 * math.pi)
+
+#: EIPS's expected improvement counts as 0 more than Z_LIMIT posterior standard deviations
+#: below the best score, and as the plain gap more than Z_LIMIT above it (what the formula
+#: gives there to double precision), which keeps its arithmetic away from subnormals.
+Z_LIMIT = 30.0
+
+
+def check_selector(name: str, params: dict, *, features, outcomes: bool = True) -> type[Policy]:
+    """The policy class for ``name``, after checking its parameters and requirements
+    (``outcomes``: whether training times and feasibility will be supplied)."""
     if name not in SELECTORS:
         raise ValueError(f"unknown selector {name!r}; choose from {', '.join(sorted(SELECTORS))}")
     cls = SELECTORS[name]
@@ -258,16 +479,52 @@ def check_selector(name: str, params: dict, *, features) -> type[Policy]:
             f"unknown parameter(s) {', '.join(sorted(unknown))} for selector {name!r} "
             f"(accepted: {accepted})"
         )
+    for key, value in params.items():
+        if isinstance(value, bool) or not isinstance(value, int | float | np.integer
+                                                     | np.floating):
+            raise ValueError(f"parameter {key} of selector {name!r} must be a number, "
+                             f"got {value!r}")
     if cls.needs_features and features is None:
         raise ValueError(f"selector {name!r} needs constraint features (an m x p array)")
+    if cls.needs_outcomes and not outcomes:
+        raise ValueError(f"selector {name!r} needs the training rows' times and feasibility "
+                         "(times=..., feasible=...)")
     return cls
+
+
+def score_unit(scores: np.ndarray) -> float:
+    """The positive number box_core divides scores by before any arithmetic: the largest
+    magnitude (1 for an all-zero matrix).  See :func:`standardise`."""
+    top = float(np.abs(scores).max()) if scores.size else 0.0
+    return top if top > 0 and math.isfinite(top) else 1.0
+
+
+#: Standardised scores are rounded to multiples of 2**-GRID_BITS (about 2e-10 of the
+#: largest score): far below any meaningful difference, far above rounding error.
+GRID_BITS = 32
+
+
+def standardise(scores, unit: float) -> np.ndarray:
+    """Scores as every selector sees them: divided by ``unit`` (:func:`score_unit`) and
+    rounded to a fixed grid.
+
+    Dividing makes all arithmetic independent of the caller's unit (no covariance overflows
+    or underflows for scores of 1e150 or 1e-150); rounding removes the last-bit differences
+    that multiplying by a factor leaves, which near-singular conditioning (rank-deficient
+    real matrices) would otherwise amplify into different orders.  So orders, ties and
+    times are the same for scores multiplied by any positive factor.  DOO's lam is in this
+    unit.
+    """
+    scale = float(2**GRID_BITS)
+    return np.round(np.asarray(scores, dtype=np.float64) / unit * scale) / scale
 
 
 class Selector:
     """A live selector for one new instance: ``propose()`` a column, then ``update`` it."""
 
-    def __init__(self, policy: Policy):
+    def __init__(self, policy: Policy, unit: float = 1.0):
         self._policy = policy
+        self._unit = unit
         self.history: list[tuple[int, float]] = []
 
     @property
@@ -291,34 +548,62 @@ class Selector:
 
     def update(self, index: int, score: float) -> None:
         """Report the score observed for column ``index`` (failed plans: the failure value)."""
+        if isinstance(index, bool) or not isinstance(index, int | np.integer):
+            raise ValueError(f"index must be an integer constraint index, got {index!r}")
         index = int(index)
         if not 0 <= index < self.m:
             raise ValueError(f"index {index} out of range for {self.m} constraints")
         if self._policy.tried[0, index]:
-            raise ValueError(f"constraint {index} was already tried")
-        score = float(score)
+            raise ValueError(f"index {index}: that constraint was already tried")
+        try:
+            score = float(score)
+        except (TypeError, ValueError):
+            raise ValueError(f"score must be a finite number, got {score!r}") from None
         if not math.isfinite(score):
             raise ValueError(f"score must be finite, got {score!r}")
-        self._policy.update(np.array([index]), np.array([score]))
+        self._policy.update(np.array([index]), standardise(np.array([score]), self._unit))
         self.history.append((index, score))
 
 
-def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores=None, **params):
+def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores=None,
+                  times=None, feasible=None, true_times=None, **params):
     """Build selector ``name`` from a training score matrix (n x m, failures already scored).
 
-    ``features`` (m x p) are needed by ``doo``; ``true_scores`` (m,) by ``oracle``;
-    ``seed`` (an int or a sequence of ints) seeds ``rand`` and ``doo``.
-    Further keyword arguments are the selector's parameters (``c`` for box, ``lam`` for
-    doo, ``delta`` for pembo).
+    ``features`` (m x p) are needed by ``doo``; ``times`` (n x m, seconds per try) and
+    ``feasible`` (n x m bool) by ``eips`` (without ``feasible``, entries above the matrix
+    minimum count as feasible; without ``times`` every try costs 1); ``true_scores`` (m,) by
+    ``oracle`` and ``fastest``, which also needs ``true_times`` (m,); ``seed`` (an int or a
+    sequence of ints) seeds ``rand`` and ``doo``.  Further keyword arguments are the
+    selector's parameters (``c`` for box, ``lam`` for doo, ``delta`` for pembo,
+    ``prior_rows`` and ``mismatch`` for eips).
     """
-    prior = Prior.fit(train_scores)
+    D = validation.score_matrix(train_scores, name="train_scores", min_rows=2)
+    unit = score_unit(D)
+    D = standardise(D, unit)
+    prior = Prior.fit(D)
     if features is not None:
         features = validation.feature_matrix(features, prior.m)
     cls = check_selector(name, params, features=features)
-    truth = None
+    if feasible is None:
+        F = D > D.min()
+    else:
+        F = validation.boolean_matrix(feasible, D.shape, name="feasible", ref="train_scores")
+    T = np.ones(D.shape) if times is None else validation.matching_matrix(
+        times, D.shape, name="times", ref="train_scores")
+    if (T < 0).any():
+        raise ValueError("times must be >= 0")
+    outcomes = TrainingOutcomes.of(D, F, T, [-1])
+    truth = true_t = true_f = None
     if cls.needs_truth:
         if true_scores is None:
             raise ValueError(f"selector {name!r} needs true_scores (the instance's score row)")
-        truth = validation.score_vector(true_scores, prior.m, name="true_scores")[None, :]
-    ctx = FoldContext(prior=prior.batch(), seeds=[seed], features=features, true_scores=truth)
-    return Selector(cls(ctx, **params))
+        truth = standardise(validation.score_vector(true_scores, prior.m, name="true_scores"),
+                            unit)[None, :]
+        true_f = truth > outcomes.threshold
+        if name == "fastest":
+            if true_times is None:
+                raise ValueError(f"selector {name!r} needs true_times (the instance's times)")
+            true_t = validation.score_vector(true_times, prior.m, name="true_times")[None, :]
+    ctx = FoldContext(prior=prior.batch(), seeds=[seed], features=features, true_scores=truth,
+                      outcomes=outcomes, true_times=true_t, true_feasible=true_f)
+    return Selector(cls(ctx, **params), unit)

@@ -1,44 +1,66 @@
-"""Small statistics helpers shared by the evaluator and its reports."""
+"""Small statistics helpers shared by the evaluator and its reports.
+
+Every interval here is a percentile bootstrap over rows (instances), never a Student-t
+interval: times are heavy-tailed and never negative, and a t interval of a mean time over a
+few dozen instances can reach below zero, which no mean time can.  A percentile bootstrap
+interval of a mean lies within the observed values, so the interval of a mean time is never
+negative and the interval of a mean score never leaves the scores' range.  The resamples use
+a fixed seed: the same data always give the same interval.
+"""
 
 from __future__ import annotations
 
 import math
 
 import numpy as np
-from scipy import stats
+
+#: Bootstrap resamples behind every interval.
+BOOTSTRAP_RESAMPLES = 2000
+
+#: The interval method, as reports and summaries name it.
+INTERVAL_METHOD = "percentile bootstrap"
+
+#: One sentence for reports and table captions saying how intervals are computed.
+INTERVAL_NOTE = (
+    f"Intervals are {INTERVAL_METHOD} intervals ({BOOTSTRAP_RESAMPLES} resamples of the "
+    "instances, fixed seed; ratios resample the instances in pairs): an interval of a mean "
+    "time lies within the observed times, so it is never negative."
+)
+
+#: Resampled means computed per batch are at most this many weights (bounded memory).
+_BATCH_ENTRIES = 1 << 22
 
 
 def mean_ci(values, level: float = 0.95) -> tuple[float, float, float]:
-    """Mean and its two-sided Student-t confidence interval, ignoring NaN.
+    """Mean and its two-sided percentile bootstrap interval, ignoring NaN.
 
     Returns (nan, nan, nan) for no values and (mean, nan, nan) for a single value.
     """
-    x = np.asarray(values, dtype=np.float64)
+    x = np.asarray(values, dtype=np.float64).ravel()
     x = x[~np.isnan(x)]
     if x.size == 0:
-        return (np.nan, np.nan, np.nan)
+        return (math.nan, math.nan, math.nan)
     mean = float(x.mean())
     if x.size == 1:
-        return (mean, np.nan, np.nan)
-    half = stats.t.ppf(0.5 + level / 2, x.size - 1) * x.std(ddof=1) / np.sqrt(x.size)
-    return (mean, float(mean - half), float(mean + half))
+        return (mean, math.nan, math.nan)
+    lo, hi = _percentiles(bootstrap_means(x[:, None])[:, 0], level)
+    return (mean, lo, hi)
 
 
 def mean_ci_columns(values: np.ndarray, level: float = 0.95):
-    """Column-wise :func:`mean_ci` of a complete (rows x columns) array: three arrays."""
+    """Column-wise :func:`mean_ci` of a complete (rows x columns) array: three arrays.
+
+    The rows are resampled together, so the band of a curve is that of whole instances.
+    """
     x = np.asarray(values, dtype=np.float64)
-    n = x.shape[0]
     mean = x.mean(axis=0)
-    if n < 2:
+    if x.shape[0] < 2:
         nan = np.full_like(mean, np.nan)
         return mean, nan, nan
-    half = stats.t.ppf(0.5 + level / 2, n - 1) * x.std(axis=0, ddof=1) / np.sqrt(n)
-    return mean, mean - half, mean + half
-
-
-#: Resamples of the paired bootstrap behind ratio intervals (fixed seed: the same data
-#: always give the same interval).
-BOOTSTRAP_RESAMPLES = 2000
+    boot = bootstrap_means(x)
+    tail = (1 - _checked(level)) / 2 * 100
+    lo, hi = np.percentile(boot, [tail, 100 - tail], axis=0)
+    return mean, np.minimum(lo, mean), np.maximum(hi, mean)
 
 
 def paired_ratio(times, ref, level: float = 0.95) -> tuple[float, float, float]:
@@ -50,10 +72,39 @@ def paired_ratio(times, ref, level: float = 0.95) -> tuple[float, float, float]:
     if a.size == 0 or b.sum() <= 0:
         return (math.nan, math.nan, math.nan)
     ratio = float(a.mean() / b.mean())
-    rng = np.random.default_rng(0)
-    idx = rng.integers(0, a.size, size=(BOOTSTRAP_RESAMPLES, a.size))
+    means = bootstrap_means(np.column_stack([a, b]))
     with np.errstate(divide="ignore", invalid="ignore"):
-        boot = a[idx].mean(axis=1) / b[idx].mean(axis=1)
-    tail = (1 - level) / 2 * 100
-    lo, hi = np.nanpercentile(boot, [tail, 100 - tail])
-    return (ratio, float(lo), float(hi))
+        boot = means[:, 0] / means[:, 1]
+    lo, hi = _percentiles(boot[np.isfinite(boot)], level)
+    return (ratio, lo, hi)
+
+
+def bootstrap_means(x: np.ndarray, resamples: int = BOOTSTRAP_RESAMPLES,
+                    seed: int = 0) -> np.ndarray:
+    """Column means of ``resamples`` bootstrap resamples of the rows of ``x`` (n x c):
+    a (resamples x c) array.  Resample r weights row i by how often it was drawn, so the
+    memory used is bounded whatever n."""
+    n = x.shape[0]
+    rng = np.random.default_rng(seed)
+    batch = max(1, min(resamples, _BATCH_ENTRIES // max(n, 1)))
+    out = np.empty((resamples, x.shape[1]))
+    for start in range(0, resamples, batch):
+        size = min(batch, resamples - start)
+        drawn = rng.integers(0, n, size=(size, n)) + n * np.arange(size)[:, None]
+        weights = np.bincount(drawn.ravel(), minlength=size * n).reshape(size, n)
+        out[start:start + size] = weights @ x / n
+    return out
+
+
+def _percentiles(boot: np.ndarray, level: float) -> tuple[float, float]:
+    if boot.size == 0:
+        return (math.nan, math.nan)
+    tail = (1 - _checked(level)) / 2 * 100
+    lo, hi = np.percentile(boot, [tail, 100 - tail])
+    return (float(lo), float(hi))
+
+
+def _checked(level: float) -> float:
+    if not 0 < level < 1:
+        raise ValueError(f"level must lie in (0, 1), got {level}")
+    return level

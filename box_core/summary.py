@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from box_core.stats import mean_ci, mean_ci_columns, paired_ratio
+from box_core.stats import INTERVAL_METHOD, mean_ci, mean_ci_columns, paired_ratio
 
 
 @dataclass(frozen=True)
@@ -78,7 +78,8 @@ class Summary:
         text.insert(1, "  ".join("-" * w for w in widths))
         caption = (
             f"time to first feasible plan, leave-one-out over n = {self.n} rows, k = {self.k}; "
-            f"x {self.reference} = mean time / mean time of {self.reference} on the same rows"
+            f"x {self.reference} = mean time / mean time of {self.reference} on the same rows; "
+            f"95 % intervals: {INTERVAL_METHOD}"
         )
         return caption + "\n" + "\n".join(text)
 

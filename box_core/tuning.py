@@ -36,9 +36,9 @@ class CurvePoint:
     high: float
 
 
-def _matrix_args(times, feasible, features, failure_rule):
+def _matrix_args(times, feasible, features, failure_rule, forbidden=None):
     return {"times": times, "feasible": feasible, "features": features,
-            "failure_rule": failure_rule, "measure_overhead": False}
+            "failure_rule": failure_rule, "measure_overhead": False, "forbidden": forbidden}
 
 
 def _take(a, rows):
@@ -58,13 +58,15 @@ def learning_curve(
     seed: int = 0,
     failure_rule: str = "magnitude",
     level: float = 0.95,
+    forbidden=None,
 ) -> list[CurvePoint]:
     """Time to first feasible plan versus the number of training rows.
 
     Each repeat draws a random test set (``test_fraction`` of the rows) and, for every
     fraction f, trains on the first f of the remaining rows in a random order (nested:
     a larger fraction adds rows).  Times of the eligible test rows are pooled over repeats;
-    the interval is Student-t over those (repeats share rows, so it is a little narrow).
+    the interval is a percentile bootstrap over those (:mod:`box_core.stats`; repeats share
+    rows, so it is a little narrow).  ``forbidden``: as in :func:`~box_core.loocv.loocv`.
     """
     D = np.asarray(scores)
     n = D.shape[0]
@@ -87,7 +89,7 @@ def learning_curve(
             train = pool[:max(2, round(f * pool.size))]
             sizes[f] = train.size
             res = holdout(D, train, test, selectors=tuple(selectors), seed=seed,
-                          **_matrix_args(times, feasible, features, failure_rule))
+                          **_matrix_args(times, feasible, features, failure_rule, forbidden))
             for s in selectors:
                 pooled[s, f].append(res.first_feasible_time[s][res.eligible])
     points = []
@@ -125,10 +127,11 @@ class CTuning:
                 "sensitivity": {str(c): v for c, v in self.sensitivity.items()}}
 
 
-def _mean_time(scores, rows, times, feasible, features, failure_rule, c, seed) -> float:
+def _mean_time(scores, rows, times, feasible, features, failure_rule, c, seed,
+               forbidden) -> float:
     res = loocv(np.asarray(scores)[rows], selectors="box", params={"box": {"c": c}},
                 seed=seed, **_matrix_args(_take(times, rows), _take(feasible, rows),
-                                          features, failure_rule))
+                                          features, failure_rule, _take(forbidden, rows)))
     t = res.first_feasible_time["box"][res.eligible]
     return float(np.nanmean(t)) if np.isfinite(t).any() else np.inf
 
@@ -145,8 +148,10 @@ def tune_c(
     seed: int = 0,
     failure_rule: str = "magnitude",
     level: float = 0.95,
+    forbidden=None,
 ) -> CTuning:
-    """Nested cross-validation of BOX's C (see the module docstring), plus its sensitivity."""
+    """Nested cross-validation of BOX's C (see the module docstring), plus its sensitivity;
+    ``forbidden`` as in :func:`~box_core.loocv.loocv`."""
     D = np.asarray(scores)
     n = D.shape[0]
     grid = tuple(float(c) for c in grid)
@@ -158,19 +163,19 @@ def tune_c(
     sensitivity = {}
     for c in grid:
         res = loocv(D, selectors="box", params={"box": {"c": c}}, seed=seed,
-                    **_matrix_args(times, feasible, features, failure_rule))
+                    **_matrix_args(times, feasible, features, failure_rule, forbidden))
         sensitivity[c] = mean_ci(res.first_feasible_time["box"][res.eligible], level)
     parts = np.array_split(np.random.default_rng([seed, 7]).permutation(n), folds)
     chosen, tuned, fixed = [], [], []
     for part in parts:
         train = np.setdiff1d(every, part)
-        costs = [_mean_time(D, train, times, feasible, features, failure_rule, c, seed)
-                 for c in grid]
+        costs = [_mean_time(D, train, times, feasible, features, failure_rule, c, seed,
+                            forbidden) for c in grid]
         best = grid[int(np.argmin(costs))]  # ties: the first, i.e. the smallest C
         chosen.append(best)
         for c, out in ((best, tuned), (fixed_c, fixed)):
             res = holdout(D, train, part, selectors="box", params={"box": {"c": c}}, seed=seed,
-                          **_matrix_args(times, feasible, features, failure_rule))
+                          **_matrix_args(times, feasible, features, failure_rule, forbidden))
             out.append(res.first_feasible_time["box"][res.eligible])
     return CTuning(grid=grid, fixed_c=float(fixed_c), sensitivity=sensitivity,
                    chosen=tuple(chosen), tuned=np.concatenate(tuned),

@@ -6,8 +6,9 @@ import sys
 
 import hydra
 from rich.console import Console
+from rich.markup import escape
 
-from pipeline.configs import register_configs
+from pipeline.configs import CONF_DIR, register_configs
 
 register_configs()
 
@@ -19,22 +20,78 @@ BAD_INPUT, FAILED, INTERRUPTED = 2, 1, 130
 def main(cfg) -> None:
     from pipeline.execution import TaskFailed
     from pipeline.stages import run_pipeline
-    from pipeline.store import StoreError
+    from pipeline.store import StoreDamaged, StoreError
+    from pipeline.validation import validate
 
     console = Console(width=None if sys.stdout.isatty() else 132)
     err = Console(stderr=True)
     try:
+        validate(cfg)  # every key, whatever the stage, before anything is opened or written
         run_pipeline(cfg, console)
     except (StoreError, ValueError) as exc:
-        err.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+        err.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
         sys.exit(BAD_INPUT)
+    except StoreDamaged as exc:
+        err.print(f"[bold red]damaged:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
+        sys.exit(FAILED)
     except TaskFailed as exc:
-        err.print(f"[bold red]failed:[/] {exc}", highlight=False, soft_wrap=True)
+        err.print(f"[bold red]failed:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
         sys.exit(FAILED)
     except KeyboardInterrupt:
         err.print("interrupted: finished blocks are saved; re-run the same command to resume")
         sys.exit(INTERRUPTED)
 
 
+def config_error(args: list[str]) -> str | None:
+    """One line saying why the config composed from ``args`` cannot run: Hydra cannot
+    compose it (an unknown key, a value of the wrong type) or a value is refused by
+    :func:`pipeline.validation.validate`.  None when it can run, or when ``args`` hold flags
+    (``-m``, ``--cfg``, ...), which Hydra handles itself (``main`` validates each job).
+
+    Checked before Hydra starts, so a refused command writes nothing, not even Hydra's
+    ``outputs/`` folder."""
+    if any(a.startswith("-") for a in args):
+        return None
+    from hydra import compose, initialize_config_dir
+
+    from pipeline.store import StoreError
+    from pipeline.validation import validate
+
+    try:
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            cfg = compose(config_name="config", overrides=args)
+    except Exception as exc:  # noqa: BLE001 - Hydra/OmegaConf raise many types; all mean "bad"
+        return _one_line(exc)
+    try:
+        validate(cfg)
+    except (StoreError, ValueError) as exc:
+        return str(exc)
+    return None
+
+
+def _one_line(exc: Exception) -> str:
+    """Hydra's multi-line composition error as one line: the override, then the reason."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    head = lines[0] if lines else type(exc).__name__
+    for prefix in ("Error merging override ", "Could not override "):
+        if head.startswith(prefix):
+            head = head.removeprefix(prefix).strip("'.")
+    if exc.__cause__ is not None:
+        reason = str(exc.__cause__).strip().splitlines()
+        return f"{head}: {reason[0] if reason else type(exc.__cause__).__name__}"
+    if "Available options" in str(exc):
+        options = [ln for ln in lines[lines.index(next(x for x in lines
+                                                       if x.startswith("Available"))) + 1:]
+                   if not ln.startswith("Config search path") and "=" not in ln]
+        options = [o for o in options if not o.endswith("_schema")]
+        return f"{head} (available: {', '.join(options)})"
+    return head
+
+
 if __name__ == "__main__":
+    problem = config_error(sys.argv[1:])
+    if problem:
+        Console(stderr=True).print(f"[bold red]error:[/] {escape(problem)}", highlight=False,
+                                   soft_wrap=True)
+        sys.exit(BAD_INPUT)
     main()

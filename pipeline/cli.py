@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 import box_core
 from box_core import synthetic
@@ -32,7 +33,7 @@ BAD_INPUT = 2
 
 
 def _fail(message: str) -> None:
-    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
     raise typer.Exit(BAD_INPUT)
 
 
@@ -47,17 +48,22 @@ def evaluate(
     seed: int = typer.Option(0, help="Seed of the random selectors (fold i uses (seed, i))."),
     c: float = typer.Option(1.96, help="BOX's UCB coefficient."),
     failure_rule: str = typer.Option("magnitude", help="Failure score rule: magnitude or literal."),
-    scores_var: str = typer.Option("scores", help="Name of the score matrix array / variable."),
-    times_var: str = typer.Option("times", help="Name of the per-entry planning times (seconds)."),
-    feasible_var: str = typer.Option("feasible", help="Name of the feasibility mask."),
-    features_var: str = typer.Option("features", help="Name of the constraint features (m x p)."),
+    scores_var: str = typer.Option(None, help="Name of the score matrix array / variable "
+                                   "(default: scores). A name given must exist."),
+    times_var: str = typer.Option(None, help="Name of the per-entry planning times, seconds "
+                                  "(default: times or time when present, else 1 per try)."),
+    feasible_var: str = typer.Option(None, help="Name of the feasibility mask (default: "
+                                     "feasible when present)."),
+    features_var: str = typer.Option(None, help="Name of the constraint features, m x p "
+                                     "(default: features or theta when present)."),
     overhead: bool = typer.Option(True, help="Add the selectors' own compute time to times."),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
 ):
     """Leave-one-out evaluation of constraint selectors on a score matrix FILE.
 
     Rows are instances, columns constraints, higher scores are better. Without a
-    feasibility mask, entries equal to the matrix minimum count as failures.
+    feasibility mask, entries equal to the matrix minimum count as failures. An array named
+    with --*-var must exist in FILE; a damaged file or pickled objects are refused (exit 2).
     """
     try:
         if file.is_dir():
@@ -88,7 +94,15 @@ def _store_matrix(path: Path) -> MatrixFile:
 def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, seed=0,
                      c=1.96, failure_rule="magnitude", overhead=True, as_json=False) -> None:
     """Run the LOOCV on loaded ``data`` and print its summary (table or JSON)."""
+    from pipeline.validation import available_memory, evaluation_bytes, memory_text
+
     params = {"box": {"c": c}} if "box" in names else {}
+    shape = np.shape(data.scores)
+    if len(shape) == 2:
+        need, have = evaluation_bytes(*shape, len(names)), available_memory()
+        if have is not None and need > have:
+            _fail(f"{file}: evaluating a {shape[0]} x {shape[1]} matrix needs about "
+                  f"{memory_text(need)} of memory, {memory_text(have)} is available")
     try:
         result = box_core.loocv(
             data.scores, times=data.times, feasible=data.feasible, features=data.features,
@@ -97,6 +111,8 @@ def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, 
         )
     except ValueError as exc:
         _fail(f"{file}: {exc}")
+    except MemoryError:
+        _fail(f"{file}: not enough memory to evaluate a {shape} matrix")
     summary = result.summary()
     n, m = data.scores.shape
     if as_json:
@@ -128,14 +144,21 @@ def demo(
     if path.suffix != ".npz":
         _fail(f"{path}: the demo writes a NumPy archive; give a path ending in .npz")
     try:
+        _outside_stores(path, "--path")
+    except ValueError as exc:
+        _fail(str(exc))
+    try:
         useful = min(50, m)  # the paper's matrix: about 50 of 162 grasps ever feasible
         data = synthetic.score_matrix(n, m, useful=useful, per_type=min(4, useful), seed=seed)
     except ValueError as exc:
         _fail(str(exc))
     if path.exists() and not overwrite and not _holds(path, data):
         _fail(f"{path} exists and holds a different matrix; pass --overwrite to replace it")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    data.save(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        data.save(path)
+    except OSError as exc:
+        _fail(f"--path {path}: cannot write there ({exc.strerror or exc})")
     out.print(f"wrote {path}: {n} x {m}, {data.feasible.mean():.1%} of entries feasible")
     matrix = MatrixFile(scores=data.scores, times=data.times, feasible=data.feasible,
                         features=data.features)
@@ -154,15 +177,17 @@ def _holds(path: Path, data: synthetic.SyntheticData) -> bool:
 
 
 STORE_HELP = "A score store (.zarr folder) made by python -m pipeline."
+STORE_URL_HELP = STORE_HELP + " A URL (s3://bucket/x.zarr, file:///...) works too."
 
 
 @app.command()
-def status(store: Path = typer.Argument(..., help=STORE_HELP),
+def status(store: str = typer.Argument(..., help=STORE_URL_HELP),
            as_json: bool = typer.Option(False, "--json", help="Print the status as JSON.")):
     """Show what STORE holds: stages, completion, corrupted chunks.
 
-    Exit code 0 when every chunk reads back, 1 when some are corrupted (re-running the
-    stage recomputes them), 2 when STORE is missing or not a store of this pipeline.
+    Exit code 0 when every chunk reads back as recorded, 1 when some are corrupted or
+    missing (re-running the stage recomputes them), 2 when STORE is missing or not a store
+    of this pipeline.
     """
     from pipeline.status import collect, print_status
 
@@ -172,7 +197,7 @@ def status(store: Path = typer.Argument(..., help=STORE_HELP),
         _fail(str(exc))
     if as_json:
         typer.echo(json.dumps(report, indent=2))
-    if any(a["corrupted"] for a in report["arrays"]):
+    if report["damaged"]:
         raise typer.Exit(1)
 
 
@@ -184,6 +209,7 @@ def show(
                                    help="Constraint (column) index: plan it and draw the plan."),
     out_path: Path = typer.Option(None, "--out", "-o",
                                   help="PNG to write (default: instance<I>[-constraint<J>].png)."),
+    overwrite: bool = typer.Option(False, help="Replace an existing PNG."),
 ):
     """Render one instance of STORE to a PNG, optionally with a constraint's plan.
 
@@ -205,6 +231,7 @@ def show(
         domain = domain_for(domain_spec(st))
         name = f"instance{instance}" + ("" if constraint is None else f"-constraint{constraint}")
         target = out_path or Path.cwd() / f"{name}.png"
+        check_png_target(target, overwrite)
         if constraint is None:
             domain.render(spec, None, target)
             out.print(f"wrote {target}")
@@ -222,6 +249,8 @@ def show(
         domain.render(spec, plan, target, constraint=theta[constraint])
     except (StoreError, ValueError) as exc:
         _fail(str(exc))
+    except OSError as exc:
+        _fail(f"-o {target}: cannot write there ({exc.strerror or exc})")
     stored = ""
     if st.has("scores/done") and st.done("scores")[instance, constraint]:
         was = bool(st.array("scores/feasible")[instance, constraint])
@@ -231,13 +260,36 @@ def show(
     out.print(f"wrote {target}: {verdict}{stored}, {plan.time * 1e3:.1f} ms", highlight=False)
 
 
+def _outside_stores(path: Path, option: str) -> None:
+    from pipeline.export import enclosing_store
+
+    store = enclosing_store(path)
+    if store is not None:
+        raise ValueError(f"{option} {path}: inside the zarr store {store}; nothing is written "
+                         "into a store")
+
+
+def check_png_target(target: Path, overwrite: bool) -> None:
+    """Refuse a PNG path that is not a .png, exists (without ``overwrite``) or lies in a
+    zarr store."""
+    if target.suffix.lower() != ".png":
+        raise ValueError(f"-o {target}: give a path ending in .png")
+    _outside_stores(target, "-o")
+    if target.exists() and not (overwrite and target.is_file()):
+        raise ValueError(f"-o {target} exists; pass --overwrite to replace it"
+                         if target.is_file() else f"-o {target} exists and is not a file")
+
+
 @app.command()
 def export(
-    store: Path = typer.Argument(..., help=STORE_HELP),
+    store: str = typer.Argument(..., help=STORE_URL_HELP),
     fmt: str = typer.Option("npz", "--format", "-f", help="npz (one NumPy archive that box "
                             "evaluate reads) or csv (a folder of CSV files plus metadata.json)."),
-    out_path: Path = typer.Option(None, "--out", "-o", help="Where to write (default: next to "
-                                  "the current folder, named after the store)."),
+    out_path: Path = typer.Option(None, "--out", "-o", help="Where to write (default: in "
+                                  "the current folder, named after the store). Never inside "
+                                  "a store."),
+    overwrite: bool = typer.Option(False, help="Replace an existing file, or a folder that "
+                                   "holds a previous csv export."),
 ):
     """Export STORE's score matrix and metadata (npz or csv) for other tools.
 
@@ -247,7 +299,7 @@ def export(
     from pipeline.export import export as write
 
     try:
-        path, complete = write(store, fmt, out_path)
+        path, complete = write(store, fmt, out_path, overwrite=overwrite)
     except (StoreError, ValueError) as exc:
         _fail(str(exc))
     out.print(f"wrote {path}", highlight=False)

@@ -12,15 +12,16 @@ import enum
 import hashlib
 import json
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from omegaconf import MISSING, OmegaConf
-from omegaconf.errors import OmegaConfBaseException
 
-from pipeline.planning.rrt import PlannerSettings
+from pipeline.domains.schemas import DOMAIN_SCHEMAS
+from pipeline.planning.registry import PlannerSettings
+from pipeline.yaml_configs import CONF_DIR, load_yaml_config, planner_settings
 
-CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
+__all__ = ["CONF_DIR", "Config", "PlannerSettings", "identity", "load_yaml_config",
+           "planner_settings", "register_configs"]
 
 
 class Stage(enum.Enum):
@@ -63,34 +64,52 @@ class StoreConfig:
     mode: StoreMode = StoreMode.resume
     block_instances: int = 25  # a task computes one block = one chunk of every score array
     block_constraints: int = 60
+    #: passed to the fsspec filesystem of a URL store.path (endpoint_url, key, secret, ...)
+    storage_options: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
 class SlurmConfig:
-    queue: str | None = None
-    account: str | None = None
-    cores: int = 1
-    memory: str = "4GB"
+    """cluster=slurm: worker jobs submitted through dask-jobqueue (README, "Running on a
+    cluster").  Each job runs ``cores`` single-threaded worker processes."""
+
+    queue: str | None = None  # partition (sbatch -p)
+    account: str | None = None  # sbatch -A
+    cores: int = 1  # cores per job = worker processes per job
+    memory_per_worker: str = "4GB"  # a job asks for this x cores
     walltime: str = "04:00:00"
+    interface: str | None = None  # network interface of scheduler and workers (e.g. ib0)
+    job_extra_directives: list[str] = field(default_factory=list)  # e.g. ["--qos=long"]
+    job_script_prologue: list[str] = field(default_factory=list)  # e.g. ["module load x"]
+    local_directory: str | None = None  # workers' scratch folder (e.g. $TMPDIR); null: dask's
+    log_directory: str | None = None  # job logs; null: <run's output folder>/slurm-logs
+    max_replacements: int = 8  # lost jobs (cancelled, timed out) replaced at most this often
 
 
 @dataclass
 class ClusterConfig:
     kind: ClusterKind = ClusterKind.local
-    n_workers: int | None = None  # local: one per core when null; slurm: processes in total
+    n_workers: int | None = None  # local: one per allocated core when null; slurm: in total
     address: str | None = None  # kind=address: tcp://host:8786
     retries: int = 3  # per task, after a worker dies or a task raises
+    host: str = "127.0.0.1"  # where a scheduler started by this run listens
+    dashboard_address: str | None = "127.0.0.1:0"  # its dashboard; null: none
+    connect_timeout: float = 30.0  # seconds to reach cluster.address
+    worker_timeout: float = 180.0  # seconds without any worker before the run stops
+    reuse: bool = False  # keep the cluster for the next run of a sweep in this process
     slurm: SlurmConfig = field(default_factory=SlurmConfig)
 
 
 @dataclass
 class EvaluateConfig:
     selectors: list[str] = field(
-        default_factory=lambda: ["box", "static", "rand", "doo", "pembo", "oracle",
-                                 "rawplanner"])
+        default_factory=lambda: ["box", "eips", "static", "rand", "doo", "pembo", "oracle",
+                                 "fastest", "rawplanner"])
     k: int | None = None  # tries per held-out instance; null = all m
     c: float = 1.96
     failure_rule: str = "magnitude"
+    # hide from held-out row i the constraints extracted from row i's own raw solution
+    exclude_own_constraints: bool = True
 
 
 @dataclass
@@ -108,7 +127,7 @@ class ReportConfig:
 @dataclass
 class SolveConfig:
     n: int = 20  # fresh instances (seeds never used in the store)
-    selectors: list[str] = field(default_factory=lambda: ["box", "static"])
+    selectors: list[str] = field(default_factory=lambda: ["box", "eips", "static"])
     max_evaluations: int | None = 50  # planning calls per instance and selector; null = m
     max_seconds: float | None = None  # wall-clock budget per instance and selector
     use_incomplete: bool = False  # fit on the completed rows of an unfinished store
@@ -135,41 +154,12 @@ def register_configs() -> None:
     """Put the schemas in Hydra's ConfigStore (the YAML files name them in ``defaults``)."""
     from hydra.core.config_store import ConfigStore
 
-    from pipeline.domains import DOMAINS, domain_class
-
     cs = ConfigStore.instance()
     cs.store(name="config_schema", node=Config)
     cs.store(group="planner", name="planner_schema", node=PlannerSettings)
     cs.store(group="cluster", name="cluster_schema", node=ClusterConfig)
-    for name in DOMAINS:
-        cs.store(group="domain", name=f"{name}_schema", node=domain_class(name).config_class)
-
-
-def load_yaml_config(group: str, name: str, schema: type, overrides: dict | None = None):
-    """``conf/<group>/<name>.yaml`` checked against ``schema``, with ``overrides``, as a
-    ``schema`` instance.  The same composition Hydra does, without Hydra."""
-    path = CONF_DIR / group / f"{name}.yaml"
-    if not path.is_file():
-        raise ValueError(f"no {group} config {name!r}: {path} does not exist")
-    raw = OmegaConf.load(path)
-    raw.pop("defaults", None)
-    try:
-        node = OmegaConf.merge(OmegaConf.structured(schema), raw, OmegaConf.create(overrides or {}))
-        return OmegaConf.to_object(node)
-    except OmegaConfBaseException as exc:
-        raise ValueError(f"{group} config {name!r}: {exc}".splitlines()[0]) from None
-
-
-def planner_settings(planner=None) -> PlannerSettings:
-    """A PlannerSettings from a name (conf/planner/<name>.yaml), a mapping or itself."""
-    if planner is None:
-        planner = "rrt_connect"
-    if isinstance(planner, PlannerSettings):
-        return planner
-    if isinstance(planner, str):
-        return load_yaml_config("planner", planner, PlannerSettings)
-    return load_yaml_config("planner", planner.get("name", "rrt_connect"), PlannerSettings,
-                            dict(planner))
+    for name, schema in DOMAIN_SCHEMAS.items():
+        cs.store(group="domain", name=f"{name}_schema", node=schema)
 
 
 #: The keys that determine a store's contents (a store refuses to continue under others).

@@ -34,6 +34,23 @@ def load_matrix(store):
     return scores, feasible, times, store.array("constraints/theta")[...]
 
 
+def own_constraints(store) -> np.ndarray | None:
+    """(n, m) bool: column j was extracted from row i's own raw solution, or None when the
+    store's constraints come from no instance (constraints/source_instance all -1)."""
+    if not store.has("constraints/source_instance"):
+        return None
+    source = store.array("constraints/source_instance")[...]
+    if not (source >= 0).any():
+        return None
+    n = store.array("scores/feasible").shape[0]
+    return source[None, :] == np.arange(n)[:, None]
+
+
+def selector_params(names, settings) -> dict:
+    """box_core parameters from the evaluate.* settings (BOX's C)."""
+    return {"box": {"c": settings["c"]}} if "box" in names else {}
+
+
 def evaluate(run) -> None:
     store = run.store
     settings = run.plain["evaluate"]
@@ -46,11 +63,13 @@ def evaluate(run) -> None:
     with_raw = RAWPLANNER in names
     names = [s for s in names if s != RAWPLANNER]
     scores, feasible, times, theta = load_matrix(store)
-    params = {"box": {"c": settings["c"]}} if "box" in names else {}
+    own = own_constraints(store)
+    hide = own if settings.get("exclude_own_constraints", True) else None
     try:
         result = box_core.loocv(scores, times=times, feasible=feasible, features=theta,
                                 selectors=names, k=settings["k"], seed=run.cfg.seed,
-                                params=params, failure_rule=settings["failure_rule"])
+                                params=selector_params(names, settings),
+                                failure_rule=settings["failure_rule"], forbidden=hide)
     except ValueError as exc:
         raise ValueError(f"evaluate: {exc}") from None
     others = {}
@@ -61,8 +80,12 @@ def evaluate(run) -> None:
     store.forget_stage("evaluate")  # derived data: replaced as a whole
     shutil.rmtree(store.path / "evaluation", ignore_errors=True)
     _write(store, result, others)
+    # what the report states about leakage: how many rows had constraints of their own,
+    # and whether those were hidden from them
+    leakage = {"own_constraint_rows": 0 if own is None else int(own.any(axis=1).sum()),
+               "hidden": hide is not None}
     store.mark_finished("evaluate", settings=settings, failure_value=result.failure_value,
-                        summary=summary.to_dict())
+                        summary=summary.to_dict(), leakage=leakage)
     n, m = scores.shape
     run.console.print(summary_table(summary, title=f"{run.path.name}  ({n} x {m})"))
 

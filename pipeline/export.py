@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -50,25 +52,98 @@ def metadata(store: ScoreStore, arrays: dict) -> dict:
             "times": "seconds per planning call; NaN where not computed"}
 
 
-def export(path, fmt: str, out: Path | None = None) -> tuple[Path, bool]:
-    """Write the store at ``path`` as ``fmt``; return (what was written, complete?)."""
+#: What a csv export folder holds (``--overwrite`` replaces a folder holding no more).
+CSV_FILES = ("entries.csv", "constraints.csv", "instances.csv", "metadata.json")
+
+
+def export(path, fmt: str, out: Path | None = None, overwrite: bool = False) -> tuple[Path, bool]:
+    """Write the store at ``path`` as ``fmt``; return (what was written, complete?).
+
+    Refuses (ValueError, nothing written) an existing ``out`` unless ``overwrite``, any
+    ``out`` inside a zarr store, and a folder that cannot be written.  The export is written
+    under a temporary name beside ``out`` and renamed into place, so an interrupted or
+    failed export leaves no partial file and an overwritten one stays whole until then.
+    """
     if fmt not in FORMATS:
         raise ValueError(f"unknown format {fmt!r}; choose {' or '.join(FORMATS)}")
+    from pipeline.status import refuse_damaged
+
     store = ScoreStore.open(path)
+    refuse_damaged(store)
+    stem = store.path.name.removesuffix(".zarr")
+    default = f"{stem}.npz" if fmt == "npz" else f"{stem}-csv"
+    out = Path(out).expanduser() if out else Path.cwd() / default
+    if fmt == "npz" and out.suffix != ".npz":
+        raise ValueError(f"{out}: an npz export needs a path ending in .npz")
+    check_target(out, fmt, overwrite)
     arrays = _arrays(store)
     meta = metadata(store, arrays)
-    stem = store.path.name.removesuffix(".zarr")
-    if fmt == "npz":
-        out = Path(out) if out else Path.cwd() / f"{stem}.npz"
-        if out.suffix != ".npz":
-            raise ValueError(f"{out}: an npz export needs a path ending in .npz")
+    writer = _write_npz if fmt == "npz" else _write_csv
+    try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(out, **arrays, metadata=np.array(json.dumps(meta)))
-        return out, meta["complete"]
-    out = Path(out) if out else Path.cwd() / f"{stem}-csv"
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"{out} exists and is not a directory (a csv export is a folder)")
-    out.mkdir(parents=True, exist_ok=True)
+        tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
+        try:
+            writer(tmp, store, arrays, meta)
+            _replace(tmp, out)
+        finally:
+            _remove(tmp)
+    except OSError as exc:
+        raise ValueError(f"-o {out}: cannot write there ({exc.strerror or exc})") from None
+    return out, meta["complete"]
+
+
+def check_target(out: Path, fmt: str, overwrite: bool) -> None:
+    """Refuse ``out`` when it lies in a zarr store or exists (without ``overwrite``, or
+    when it is not what this export would replace)."""
+    store = enclosing_store(out)
+    if store is not None:
+        raise ValueError(f"-o {out}: inside the zarr store {store}; exports are never "
+                         "written into a store")
+    if not (out.exists() or out.is_symlink()):
+        check_writable_parent(out)
+        return
+    if not overwrite:
+        raise ValueError(f"-o {out} exists; pass --overwrite to replace it")
+    if fmt == "npz" and not out.is_file():
+        raise ValueError(f"-o {out} exists and is not a file; --overwrite replaces files only")
+    if fmt == "csv":
+        if not out.is_dir() or out.is_symlink():
+            raise ValueError(f"-o {out} exists and is not a directory (a csv export is a "
+                             "folder)")
+        foreign = sorted(p.name for p in out.iterdir() if p.name not in CSV_FILES)
+        if foreign:
+            raise ValueError(f"-o {out} holds files a csv export does not write "
+                             f"({', '.join(foreign[:3])}); --overwrite replaces only a "
+                             "previous export")
+
+
+def enclosing_store(path: Path) -> Path | None:
+    """The Zarr store (any folder with a ``zarr.json``) that ``path`` is or lies in."""
+    absolute = Path(path).absolute()
+    for folder in (absolute, *absolute.parents):
+        if (folder / "zarr.json").is_file():
+            return folder
+    return None
+
+
+def check_writable_parent(out: Path) -> None:
+    """Refuse ``out`` when its nearest existing ancestor is not a folder we may write in."""
+    folder = out.absolute().parent
+    while not folder.exists():
+        folder = folder.parent
+    if not folder.is_dir():
+        raise ValueError(f"-o {out}: {folder} is a file, not a folder")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ValueError(f"-o {out}: the folder {folder} is not writable")
+
+
+def _write_npz(tmp: Path, store, arrays, meta) -> None:
+    with open(tmp, "wb") as f:
+        np.savez_compressed(f, **arrays, metadata=np.array(json.dumps(meta)))
+
+
+def _write_csv(out: Path, store, arrays, meta) -> None:
+    out.mkdir()
     n, m = arrays["scores"].shape
     with open(out / "entries.csv", "w", newline="") as f:
         w = csv.writer(f)
@@ -95,7 +170,24 @@ def export(path, fmt: str, out: Path | None = None) -> tuple[Path, bool]:
         for i, (seed, spec) in enumerate(zip(arrays["instance_seed"], specs, strict=True)):
             w.writerow([i, int(seed), str(spec)])
     (out / "metadata.json").write_text(json.dumps(meta, indent=1))
-    return out, meta["complete"]
+
+
+def _replace(tmp: Path, out: Path) -> None:
+    """Move ``tmp`` to ``out``; an old ``out`` folder is set aside first, removed last."""
+    if out.is_dir() and not out.is_symlink():
+        old = out.parent / f".{out.name}.old-{os.getpid()}"
+        out.rename(old)
+        tmp.rename(out)
+        _remove(old)
+    else:
+        os.replace(tmp, out)
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path, ignore_errors=True)
+    elif path.exists() or path.is_symlink():
+        path.unlink()
 
 
 def _cell(x) -> str:

@@ -43,7 +43,8 @@ def fresh_seeds(seed: int, n: int, used) -> list[int]:
 
 
 def training_matrix(store: ScoreStore, use_incomplete: bool, failure_rule: str):
-    """(filled scores of the usable rows, theta, failure value, rows used)."""
+    """(filled scores of the usable rows, their feasibility and times, theta, failure
+    value, rows used)."""
     if store.stage_info("constraints") is None or not store.has("scores/done"):
         raise StoreError(f"{store.path} has no score matrix yet; run stage=generate first")
     done = store.done("scores")
@@ -59,20 +60,23 @@ def training_matrix(store: ScoreStore, use_incomplete: bool, failure_rule: str):
                              "the prior needs at least 3")
         feasible = store.array("scores/feasible")[...][complete]
         length = store.array("scores/length")[...][complete]
+        times = store.array("scores/time")[...][complete]
         theta = store.array("constraints/theta")[...]
         scores = path_scores(feasible, length)
     else:
-        scores, feasible, _, theta = load_matrix(store)
+        scores, feasible, times, theta = load_matrix(store)
     if not feasible.any():
         raise StoreError(f"{store.path}: no feasible entry in the training rows; BOX has "
                          "nothing to learn from")
     d = box_core.failure_value(scores, feasible, failure_rule)
-    return box_core.fill_failures(scores, feasible, d), theta, d, np.flatnonzero(complete)
+    return (box_core.fill_failures(scores, feasible, d), feasible, times, theta, d,
+            np.flatnonzero(complete))
 
 
 def solve_instance(spec: dict, instance: dict, inst_seed: int, run_seed: int, train, theta,
                    d: float, selectors: list[str], c: float, max_evaluations: int,
-                   max_seconds: float | None, order_flip: bool = False) -> dict:
+                   max_seconds: float | None, order_flip: bool = False,
+                   train_feasible=None, train_times=None) -> dict:
     """One fresh instance: every selector live, then RAWPLANNER (runs in a worker)."""
     from pipeline.worker import RAW_ENTRY, domain_for, entry_seed
 
@@ -93,7 +97,7 @@ def solve_instance(spec: dict, instance: dict, inst_seed: int, run_seed: int, tr
         k = selectors.index(name)
         params = {"c": c} if name == "box" else {}
         sel = box_core.make_selector(name, train, features=theta, seed=[run_seed, inst_seed, k],
-                                     **params)
+                                     feasible=train_feasible, times=train_times, **params)
         tries, best, first = [], None, math.nan
         start = time.perf_counter()
         for _ in range(min(max_evaluations, theta.shape[0])):
@@ -182,15 +186,15 @@ def solve(run, out_dir: Path) -> dict:
         raise ValueError(f"solve.max_seconds must be > 0 or null, got {settings['max_seconds']}")
     names = list(dict.fromkeys(s for s in settings["selectors"] if s != RAWPLANNER))
     for name in names:
-        if name == "oracle":
-            raise ValueError("solve.selectors: oracle needs the true scores of a new instance, "
-                             "which live solving does not have")
+        if box_core.SELECTORS.get(name) is not None and box_core.SELECTORS[name].needs_truth:
+            raise ValueError(f"solve.selectors: {name} needs the true scores of a new "
+                             "instance, which live solving does not have")
         box_core.selectors.check_selector(name, {"c": 1.0} if name == "box" else {},
                                           features=np.zeros((1, 1)))
     store = ScoreStore.open(run.path)
     spec = domain_spec(store)
-    train, theta, d, rows = training_matrix(store, settings["use_incomplete"],
-                                            run.plain["evaluate"]["failure_rule"])
+    train, train_feasible, train_times, theta, d, rows = training_matrix(
+        store, settings["use_incomplete"], run.plain["evaluate"]["failure_rule"])
     seed = int(store.attrs["config"]["seed"])
     domain = domain_for(spec)
     seeds = fresh_seeds(seed, settings["n"], store.array("instances/seed")[...])
@@ -202,7 +206,7 @@ def solve(run, out_dir: Path) -> dict:
     tasks = [Task(key=f"solve-{store.attrs['config_hash']}-{k}-{s}", fn=solve_instance,
                   args=(spec, instances[k], s, seed, train, theta, d, names,
                         run.plain["evaluate"]["c"], max_eval, settings["max_seconds"],
-                        k % 2 == 1),
+                        k % 2 == 1, train_feasible, train_times),
                   entries=1, block=k) for k, s in enumerate(seeds)]
     run_tasks(run.client, tasks, lambda task, rec: records.__setitem__(task.block, rec),
               retries=cfg.cluster.retries, label="solve", console=run.console,

@@ -1,14 +1,22 @@
 """The pipeline's stages (Algorithm 2 of the paper), run by ``python -m pipeline stage=...``.
 
-Each stage is idempotent: it reads what is already done from the store and computes only
-the rest, so re-running an interrupted command resumes it and re-running a finished one
-does nothing.  Only this (coordinating) process writes metadata and ``done`` masks.
+Each stage is idempotent: it reads what is already done (and intact) from the store and
+computes only the rest, so re-running an interrupted command resumes it and re-running a
+finished one writes nothing.  Every stage has a ``todo`` check that only reads: a run first
+checks every stage it was asked for on a read-only view of the store, and takes the lock and
+opens the store for writing only when one of them has work (a finished store on a read-only
+disk re-runs fine).  Workers compute; only this (coordinating) process writes the store.
+
+Each stage records digests of the arrays it was computed from (``inputs`` in its record in
+the root attribute ``stages``); a stage whose inputs changed since (a block recomputed after
+damage, a changed setting) runs again and says why.
 """
 
 from __future__ import annotations
 
 import contextlib
 import json
+import uuid
 from collections import Counter
 from pathlib import Path
 
@@ -19,18 +27,37 @@ from rich.console import Console
 from pipeline import configs, worker
 from pipeline.configs import Stage
 from pipeline.domains import ConstraintSet, load_domain
-from pipeline.execution import Task, dask_client, run_tasks
+from pipeline.execution import Task, connect_first, dask_client, run_tasks
+from pipeline.integrity import Damage, digest
+from pipeline.location import locate
 from pipeline.store import (
-    RESULT_COLUMNS,
+    LAYOUT_VERSION,
+    LockError,
     ScoreStore,
+    StoreDamaged,
     StoreError,
     StoreLock,
     block_region,
     check_is_ours,
     default_path,
+    feature_coord,
+    feature_names,
+    instance_coord,
+    source_coord,
+    write_error,
 )
 
 GENERATE = ("instances", "raw", "constraints", "scores")
+
+#: What each stage is computed from (its digests are recorded with the stage).
+INPUTS = {
+    "instances": (),
+    "raw": ("instances/seed", "instances/spec"),
+    "constraints": ("raw/constraint",),
+    "scores": ("instances/seed", "instances/spec", "constraints/theta"),
+    "evaluate": ("scores/feasible", "scores/length", "scores/time", "constraints/theta",
+                 "raw/feasible", "raw/time"),
+}
 
 
 def instance_seeds(seed: int, n: int) -> np.ndarray:
@@ -56,11 +83,18 @@ class Run:
         overrides = {k: v for k, v in self.plain["domain"].items() if k != "name"}
         self.domain = load_domain(name, planner=planner, **overrides)
         self.domain_spec = {"name": name, "config": overrides, "planner": self.plain["planner"]}
-        path = cfg.store.path or default_path(name, planner.name, cfg.seed)
-        self.path = Path(path).expanduser().absolute()
+        self.location = locate(cfg.store.path or default_path(name, planner.name, cfg.seed),
+                               self.plain["store"].get("storage_options"))
+        self.path = self.location.path
         self.identity = configs.identity(cfg)
         self.identity_hash = configs.config_hash(self.identity)
+        #: names this run's tasks: two runs on one scheduler never share a future
+        self.token = (configs.config_hash({"store": str(self.location)})[:8] + "-"
+                      + uuid.uuid4().hex[:8])
         self.store: ScoreStore | None = None
+        self.writing = False
+        self.wrote = False
+        self._todo: dict[str, str | None] = {}
         self._stack = contextlib.ExitStack()
         self._client = None
 
@@ -79,15 +113,50 @@ class Run:
             raise ValueError(f"cluster.retries must be >= 0, got {c.cluster.retries}")
 
     # -- resources -------------------------------------------------------------------------
+    def open_for_reading(self) -> ScoreStore | None:
+        """A read-only view of the existing store made with this config, or None when
+        there is none yet (a foreign path or a different config is refused here unless
+        ``store.mode=overwrite``, which needs writing)."""
+        holder = StoreLock(self.location).held_by_other() if self.location.exists() else None
+        if holder:
+            raise LockError(f"store {self.location} is in use by a running pipeline ({holder}); "
+                            "wait for it or stop it first")
+        if self.location.is_empty():
+            return None
+        check_is_ours(self.location)
+        store = ScoreStore(self.location, read_only=True)
+        if store.attrs.get("identity") != self.identity:
+            return None  # prepare() refuses it, or replaces it with store.mode=overwrite
+        self.store = store
+        return store
+
     def open_for_writing(self) -> ScoreStore:
-        if self.path.exists() and (not self.path.is_dir() or any(self.path.iterdir())):
-            check_is_ours(self.path)  # refuse before touching anything near a foreign path
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._stack.enter_context(StoreLock(self.path))
+        """Lock the store and open it for writing (created, replaced or migrated here)."""
+        if self.writing:
+            return self.store
+        if self.location.local is not None:
+            local = self.location.local
+            if local.exists() and (not local.is_dir() or any(local.iterdir())):
+                check_is_ours(self.location)  # refuse before touching anything near it
+            local.parent.mkdir(parents=True, exist_ok=True)
+        self._stack.enter_context(StoreLock(self.location))
         self.store = ScoreStore.prepare(
-            self.path, self.identity, self.plain,
+            self.location, self.identity, self.recorded_config(),
             overwrite=self.cfg.store.mode is configs.StoreMode.overwrite)
+        if self.store.layout_version < LAYOUT_VERSION:
+            from pipeline.migrate import migrate
+
+            for note in migrate(self.store, self.domain):
+                self.say(f"store: migrated to layout {LAYOUT_VERSION}; {note}")
+        self.writing = True
         return self.store
+
+    def recorded_config(self) -> dict:
+        """The resolved config as the store records it (storage options may hold secrets:
+        only their keys are kept)."""
+        store = dict(self.plain["store"])
+        store["storage_options"] = dict.fromkeys(store.get("storage_options") or {}, "***")
+        return {**self.plain, "store": store}
 
     @property
     def client(self):
@@ -102,87 +171,247 @@ class Run:
         self.console.print(text, highlight=False)
 
     def require(self, stage: str, needed_by: str) -> None:
-        if self.store.stage_info(stage) is None:
+        if self.store is None or self.store.stage_info(stage) is None:
             raise StoreError(f"stage {needed_by} needs stage {stage} first "
                              f"(run stage={stage}, or stage=generate for all of them)")
 
-    # -- helpers -----------------------------------------------------------------------
-    def _pending(self, group: str) -> list[tuple[int, ...]]:
-        """Chunk indices of ``group`` that still need computing: not done, or done but
-        corrupted (those are un-marked here, then recomputed)."""
-        finished, pending = self.store.blocks(group)
-        names = [n for n in RESULT_COLUMNS if n != "time"]
-        bad = self.store.corrupted_blocks(group, names + ["done"], finished)
-        chunks = self.store.array(f"{group}/done").chunks
-        for block in bad:
-            self.store.set_done(group, block_region(block, chunks), False)
-        if bad:
-            self.say(f"[yellow]{group}: {len(bad)} corrupted block(s) found; recomputing them")
-        return sorted(pending + bad)
+    # -- what changed ------------------------------------------------------------------------
+    def todo(self, stage: str) -> str | None:
+        """Why ``stage`` must run, or None (checked once per stage and run: the read-only
+        check that decided to take the lock is not repeated)."""
+        if stage not in self._todo:
+            self._todo[stage] = TODO[stage](self)
+        return self._todo.pop(stage) if self.writing else self._todo[stage]
+
+    def changed_inputs(self, stage: str) -> list[str]:
+        """Inputs of ``stage`` whose digests differ from those it recorded."""
+        recorded = (self.store.stage_info(stage) or {}).get("inputs")
+        if not recorded:
+            return []  # not run, or run before inputs were recorded
+        keys = [k for k in recorded if self.store.has(k)]
+        current = self.store.array_digests(keys)
+        return sorted(k for k in recorded if current.get(k) != recorded[k])
+
+    def finish(self, stage: str, **info) -> None:
+        """Mark ``stage`` finished, with the digests of its inputs."""
+        keys = [k for k in INPUTS[stage] if self.store.has(k)]
+        self.store.mark_finished(stage, inputs=self.store.array_digests(keys), **info)
+        self.wrote = True
+
+    # -- block groups ------------------------------------------------------------------------
+    def block_state(self, group: str) -> tuple[list[tuple], Damage]:
+        """(blocks to compute, damage found in finished ones) of a result group."""
+        store = self.store
+        if not store.has_table(group):
+            finished, pending = store.blocks(group)  # a layout-1 store opened read-only
+            damage = store.verify(group)
+            return sorted(set(pending) | damage.blocks), damage
+        finished = store.finished_blocks(group)
+        damage = store.verify(group, finished)
+        ok = set(finished) - damage.blocks
+        return [b for b in np.ndindex(*store.grid(group)) if b not in ok], damage
+
+    def _pending(self, group: str, coords: dict) -> list[tuple[int, ...]]:
+        """Blocks of ``group`` to compute; damaged finished ones are un-marked first (and
+        the coordinates, derived from other groups, written again)."""
+        changed = self.changed_inputs(group)
+        if changed:
+            self.say(f"[yellow]{group}: its inputs changed since it ran "
+                     f"({', '.join(changed)}); computing every block again")
+            self.store.forget_blocks(group, list(np.ndindex(*self.store.grid(group))))
+            self.store.forget_stage(group)
+        pending, damage = self.block_state(group)
+        if damage:
+            self.say(f"[yellow]{group}: {len(damage.blocks)} damaged block(s) found "
+                     f"({damage.describe()}); recomputing them")
+            self.store.forget_blocks(group, sorted(damage.blocks))
+            self.store.forget_stage(group)
+            names = [n for n in self.store.layout(group).names if n not in coords]
+            self.store.write_coords(group, coords, names)
+        return sorted(pending)
 
     def _run_blocks(self, group: str, tasks: list[Task], label: str) -> Counter:
         statuses: Counter = Counter()
 
-        def finished(task: Task, report: dict) -> None:
-            self.store.set_done(group, task.block)
+        def finished(task: Task, result: tuple[dict, dict]) -> None:
+            arrays, report = result
+            self.store.write_block(group, task.block, arrays)
             statuses.update(report["status"])
             for message in report["errors"]:
                 self.say(f"[yellow]{label}: planning error in block: {message}")
 
         if tasks:
+            self.wrote = True
             run_tasks(self.client, tasks, finished, retries=self.cfg.cluster.retries,
                       label=label, console=self.console, progress=self.cfg.progress)
         return statuses
 
 
+# -- the checks every stage makes before writing anything --------------------------------------
+def todo_whole(run: Run, stage: str, group: str) -> str | None:
+    """Why a stage written whole (instances, constraints) must run, or None."""
+    store = run.store
+    if store is None or store.stage_info(stage) is None:
+        return "not run yet"
+    changed = run.changed_inputs(stage)
+    if changed:
+        return f"its inputs changed ({', '.join(changed)})"
+    damage = store.verify(group, expect_all=True)
+    return f"damaged: {damage.describe()}" if damage else None
+
+
+def todo_blocks(run: Run, stage: str) -> str | None:
+    """Why a result stage (raw, scores) must run, or None."""
+    store = run.store
+    if store is None or not store.has(f"{stage}/done"):
+        return "not run yet"
+    changed = run.changed_inputs(stage)
+    if changed:
+        return f"its inputs changed ({', '.join(changed)})"
+    pending, damage = run.block_state(stage)
+    if damage:
+        return f"damaged: {damage.describe()}"
+    if pending or store.stage_info(stage) is None:
+        return f"{len(pending)} blocks to compute"
+    return None
+
+
+def todo_evaluate(run: Run) -> str | None:
+    store = run.store
+    info = store.stage_info("evaluate") if store is not None else None
+    if info is None:
+        return "not run yet"
+    if info.get("settings") != run.plain["evaluate"]:
+        return "its settings changed"
+    changed = run.changed_inputs("evaluate")
+    if changed:
+        return f"its inputs changed ({', '.join(changed)})"
+    outputs = info.get("outputs")
+    if outputs is None:
+        return None  # run before outputs were recorded
+    damage = store.verify_whole(outputs)
+    return f"its results are damaged: {damage.describe()}" if damage else None
+
+
+TODO = {"instances": lambda run: todo_whole(run, "instances", "instances"),
+        "raw": lambda run: todo_blocks(run, "raw"),
+        "constraints": lambda run: todo_whole(run, "constraints", "constraints"),
+        "scores": lambda run: todo_blocks(run, "scores"),
+        "evaluate": todo_evaluate}
+
+
 # -- stages --------------------------------------------------------------------------------
+def _write_whole(run: Run, group: str, arrays: dict[str, np.ndarray], make) -> None:
+    """Write a group computed whole (``make()`` creates its arrays and table when absent).
+
+    Over an existing, recorded group only damaged or unrecorded blocks are rewritten, and
+    only when the values computed again agree with the recorded digests: otherwise the
+    group is refused, naming the array (computing it again does not give what was stored).
+    """
+    store = run.store
+    if not store.has_table(group) or store.stage_info(group) is None \
+            or run.changed_inputs(group) or store.missing_arrays(group):
+        make()
+        for name, values in arrays.items():
+            store.array(f"{group}/{name}")[...] = values
+        store.record_blocks(group)
+        return
+    layout = store.layout(group)
+    table = store.array(f"integrity/{group}")
+    damaged = store.verify(group, expect_all=True).blocks
+    for block in np.ndindex(*store.grid(group)):
+        try:
+            row = table.blocks[(*block, 0)].reshape(-1)
+        except Exception:  # noqa: BLE001 (an unreadable record: rewritten below)
+            row = np.zeros(len(layout.names), dtype="uint64")
+        fresh = []
+        for k, name in enumerate(layout.names):
+            arr = store.array(f"{group}/{name}")
+            chunk = layout.chunk_of(arr.metadata.dimension_names, block)
+            values = arrays[name][block_region(chunk, arr.chunks)]
+            fresh.append(digest(values))
+            if row[k] and row[k] != fresh[-1]:
+                raise StoreError(f"{group}/{name}: block {block} is damaged and computing it "
+                                 "again from its seeds gives different values; the store "
+                                 "cannot be repaired: regenerate it (store.mode=overwrite or "
+                                 "another store.path)")
+        if block in damaged or not np.all(row):
+            for name in layout.names:
+                arr = store.array(f"{group}/{name}")
+                region = block_region(layout.chunk_of(arr.metadata.dimension_names, block),
+                                      arr.chunks)
+                arr[region] = arrays[name][region]
+            table[block] = np.array(fresh, dtype="uint64")
+
+
 def stage_instances(run: Run) -> None:
     store, n = run.store, run.cfg.instances.n
-    if store.stage_info("instances"):
+    reason = run.todo("instances")
+    if reason is None:
         run.say(f"instances: already complete ({n} instances); nothing to do")
         return
     seeds = instance_seeds(run.cfg.seed, n)
     specs = np.array([json.dumps(run.domain.sample_instance(int(s)), sort_keys=True)
-                      for s in seeds], dtype=object)
+                      for s in seeds], dtype=str)
     chunk = (run.cfg.store.block_instances,)
-    store.create("instances/seed", (n,), chunk, "int64", 0, ("instance",))[:] = seeds
-    store.create("instances/spec", (n,), chunk, str, "", ("instance",),
-                 description="instance specs, JSON text")[:] = specs.astype(str)
-    store.mark_finished("instances", n=n)
-    run.say(f"instances: sampled {n} {run.domain.name} instances")
+
+    def make():
+        store.create("instances/seed", (n,), chunk, "int64", 0, ("instance",))
+        store.create("instances/spec", (n,), chunk, str, "", ("instance",),
+                     description="instance specs, JSON text")
+        store.create_table("instances", ["seed", "spec"])
+
+    repairing = store.stage_info("instances") is not None
+    _write_whole(run, "instances", {"seed": seeds, "spec": specs}, make)
+    run.finish("instances", n=n)
+    if repairing:
+        run.say(f"instances: {reason}; sampled again from their seeds and repaired")
+    else:
+        run.say(f"instances: sampled {n} {run.domain.name} instances")
+
+
+def _inputs(run: Run):
+    specs = [str(s) for s in run.store.array("instances/spec")[...]]
+    seeds = run.store.array("instances/seed")[...]
+    return specs, seeds
 
 
 def stage_raw(run: Run) -> None:
     run.require("instances", "raw")
     store, n, b = run.store, run.cfg.instances.n, run.cfg.store.block_instances
-    if not store.has("raw/done"):
-        p = run.domain.n_features
-        store.create("raw/tries", (n,), (b,), "int32", 0, ("instance",))
-        store.create("raw/constraint", (n, p), (b, p), "float64", np.nan, ("instance", "feature"),
-                     description="constraint extracted from the raw solution (NaN: none)")
-        store.create_results("raw", (n,), (b,), ("instance",), run.domain.steps)
-    pending = run._pending("raw")
-    if not pending and store.stage_info("raw"):
+    if run.todo("raw") is None:
         run.say("raw: already complete; nothing to do")
         return
+    p = run.domain.n_features
+    coords = {**instance_coord(store.array("instances/seed")[...]),
+              **feature_coord(feature_names(run.domain, p))}
+    if not store.has_table("raw") or store.missing_arrays("raw"):
+        extra = [("tries", (n,), (b,), "int32", 0, ("instance",), {}),
+                 ("constraint", (n, p), (b, p), "float64", np.nan, ("instance", "feature"),
+                  {"description": "constraint extracted from the raw solution (NaN: none)"})]
+        store.create_results("raw", (n,), (b,), ("instance",), run.domain.steps, extra,
+                             coords)
+    pending = run._pending("raw", coords)
     store.forget_stage("raw")
+    specs, seeds = _inputs(run)
     tasks = []
     for (bi,) in pending:
-        rows = (bi * b, min((bi + 1) * b, n))
-        tasks.append(Task(key=f"raw-{run.identity_hash}-{bi}", fn=worker.raw_block,
-                          args=(str(run.path), run.domain_spec, run.cfg.seed, rows),
-                          entries=rows[1] - rows[0], block=(slice(*rows),)))
+        rows = slice(bi * b, min((bi + 1) * b, n))
+        tasks.append(Task(key=f"raw-{run.token}-{bi}", fn=worker.raw_block,
+                          args=(run.domain_spec, run.cfg.seed, specs[rows], seeds[rows]),
+                          entries=rows.stop - rows.start, block=(bi,)))
     if len(pending) < -(-n // b):
         run.say(f"raw: resuming, {n - sum(t.entries for t in tasks)} of {n} already done")
     run._run_blocks("raw", tasks, "raw")
     feasible = store.array("raw/feasible")[:]
-    store.mark_finished("raw", feasible=int(feasible.sum()))
+    run.finish("raw", feasible=int(feasible.sum()))
     run.say(f"raw: RAWPLANNER solved {int(feasible.sum())} of {n} instances")
 
 
 def stage_constraints(run: Run) -> None:
     store = run.store
-    if store.stage_info("constraints"):
+    reason = run.todo("constraints")
+    if reason is None:
         run.say(f"constraints: already complete "
                 f"({store.stage_info('constraints')['m']} constraints); nothing to do")
         return
@@ -203,13 +432,26 @@ def stage_constraints(run: Run) -> None:
         rng = np.random.default_rng([run.cfg.seed, 3])
         keep = np.sort(rng.choice(candidates.m, size=m, replace=False))
     theta = candidates.features[keep]
-    bc = run.cfg.store.block_constraints
-    store.create("constraints/theta", theta.shape, (bc, theta.shape[1]), "float64", np.nan,
-                 ("constraint", "feature"))[...] = theta
-    store.create("constraints/source_instance", (len(keep),), (bc,), "int64", -1,
-                 ("constraint",), description="instance whose raw solution gave it; -1: fixed")
-    store.array("constraints/source_instance", mode="r+")[...] = candidates.source_instance[keep]
-    store.mark_finished("constraints", m=len(keep), candidates=candidates.m, m_requested=m)
+    bc, p = run.cfg.store.block_constraints, theta.shape[1]
+    names = feature_names(domain, p)
+
+    def make():
+        store.create("constraints/theta", theta.shape, (bc, p), "float64", np.nan,
+                     ("constraint", "feature"))
+        store.create("constraints/source_instance", (len(keep),), (bc,), "int64", -1,
+                     ("constraint",), description="instance whose raw solution gave it; "
+                     "-1: fixed")
+        store.write_coords("constraints", feature_coord(names), ["theta", "source_instance"])
+        store.create_table("constraints", ["theta", "source_instance", "feature"])
+
+    repairing = store.stage_info("constraints") is not None and "damaged" in reason
+    _write_whole(run, "constraints", {"theta": theta, "feature": np.asarray(names, dtype=str),
+                                      "source_instance": candidates.source_instance[keep]},
+                 make)
+    run.finish("constraints", m=len(keep), candidates=candidates.m, m_requested=m)
+    if repairing:
+        run.say(f"constraints: {reason}; computed again and repaired")
+        return
     note = "" if len(keep) == m else f" (fewer than constraints.m = {m}: all candidates)"
     run.say(f"constraints: {len(keep)} of {candidates.m} candidates{note}")
 
@@ -219,27 +461,32 @@ def stage_scores(run: Run) -> None:
     store = run.store
     n, m = run.cfg.instances.n, store.stage_info("constraints")["m"]
     bi, bj = run.cfg.store.block_instances, run.cfg.store.block_constraints
-    if not store.has("scores/done"):
-        store.create_results("scores", (n, m), (bi, bj), ("instance", "constraint"),
-                             run.domain.steps)
-    pending = run._pending("scores")
-    if not pending and store.stage_info("scores"):
+    if run.todo("scores") is None:
         run.say(f"scores: already complete ({n} x {m}); nothing to do")
         return
+    coords = {**instance_coord(store.array("instances/seed")[...]),
+              **source_coord(store.array("constraints/source_instance")[...])}
+    if not store.has_table("scores") or store.missing_arrays("scores"):
+        store.create_results("scores", (n, m), (bi, bj), ("instance", "constraint"),
+                             run.domain.steps, coords=coords)
+    pending = run._pending("scores", coords)
     store.forget_stage("scores")
+    specs, seeds = _inputs(run)
+    theta = store.array("constraints/theta")[...]
     tasks = []
     for i, j in pending:
-        rows, cols = (i * bi, min((i + 1) * bi, n)), (j * bj, min((j + 1) * bj, m))
-        tasks.append(Task(key=f"scores-{run.identity_hash}-{i}-{j}", fn=worker.score_block,
-                          args=(str(run.path), run.domain_spec, run.cfg.seed, rows, cols),
-                          entries=(rows[1] - rows[0]) * (cols[1] - cols[0]),
-                          block=(slice(*rows), slice(*cols))))
+        rows, cols = slice(i * bi, min((i + 1) * bi, n)), slice(j * bj, min((j + 1) * bj, m))
+        tasks.append(Task(key=f"scores-{run.token}-{i}-{j}", fn=worker.score_block,
+                          args=(run.domain_spec, run.cfg.seed, specs[rows], seeds[rows],
+                                theta[cols], cols.start),
+                          entries=(rows.stop - rows.start) * (cols.stop - cols.start),
+                          block=(i, j)))
     todo = sum(t.entries for t in tasks)
     if todo < n * m:
         run.say(f"scores: resuming, {n * m - todo} of {n * m} entries already done")
     statuses = run._run_blocks("scores", tasks, "scores")
     feasible = store.array("scores/feasible")[...]
-    store.mark_finished("scores", feasible_fraction=float(feasible.mean()))
+    run.finish("scores", feasible_fraction=float(feasible.mean()))
     mix = ", ".join(f"{k} {v}" for k, v in statuses.most_common()) or "none this run"
     run.say(f"scores: {n} x {m} complete, {feasible.mean():.1%} feasible (computed now: {mix})")
 
@@ -248,7 +495,20 @@ def stage_evaluate(run: Run) -> None:
     from pipeline import evaluation
 
     run.require("scores", "evaluate")
+    store = run.store
+    reason = run.todo("evaluate")
+    if reason is not None and store.stage_info("evaluate") is not None:
+        run.say(f"evaluate: running again: {reason}")
+    if reason is not None:
+        store.forget_stage("evaluate")  # derived data: replaced as a whole
+        store.remove("evaluation")
     evaluation.evaluate(run)
+    if reason is not None:
+        outputs = {key: f"{digest(store.array(key)[...]):016x}"
+                   for key in store.arrays_under("evaluation")}
+        keys = [k for k in INPUTS["evaluate"] if store.has(k)]
+        store.update_stage("evaluate", inputs=store.array_digests(keys), outputs=outputs)
+        run.wrote = True
 
 
 STAGES = {"instances": stage_instances, "raw": stage_raw, "constraints": stage_constraints,
@@ -301,25 +561,53 @@ def stage_solve(run: Run) -> None:
 
 
 def run_pipeline(cfg, console: Console) -> None:
-    """Run ``cfg.stage`` (raises StoreError / ValueError for bad input)."""
+    """Run ``cfg.stage`` (raises StoreError / ValueError for bad input, StoreDamaged when
+    ``stage=status`` finds damage)."""
     stage = cfg.stage if isinstance(cfg.stage, Stage) else Stage(cfg.stage)
     run = Run(cfg, console)
     if stage is Stage.status:
-        from pipeline.status import print_status
+        from pipeline.status import damaged, print_status
 
-        print_status(run.path, console)
+        report = print_status(run.location, console)
+        if damaged(report):
+            raise StoreDamaged(f"store {run.location} is damaged: {damaged(report)}")
         return
     try:
         writing = plan_stages(stage)
         if writing:
-            run.open_for_writing()
-            run.say(f"store: {run.path} (config {run.store.attrs['config_hash']})")
-            for name in writing:
-                STAGES[name](run)
-                run.store.consolidate()
+            _write_stages(run, writing)
         if stage in (Stage.report, Stage.all):
             stage_report(run)
         if stage is Stage.solve:
             stage_solve(run)
     finally:
         run.close()
+
+
+def _write_stages(run: Run, names) -> None:
+    """Run the store-writing stages ``names``: checked read-only first, written (under the
+    lock) only from the first stage that has work."""
+    run.open_for_reading()
+    try:
+        for name in names:
+            if not run.writing and run.todo(name) is not None:
+                if {"raw", "scores"} & set(names) and connect_first(run.cfg.cluster):
+                    _ = run.client  # connect before the store is touched: a failure writes nothing
+                run.open_for_writing()
+                run.say(f"store: {run.path} (config {run.store.attrs['config_hash']})")
+            if not run.writing and name == "evaluate":
+                from pipeline.evaluation import evaluate
+
+                evaluate(run)  # says "already complete" and shows the stored summary
+                continue
+            if not run.writing:
+                run.say(f"{name}: already complete; nothing to do")
+                continue
+            STAGES[name](run)
+            if run.wrote:
+                run.store.consolidate()
+        if run.wrote:
+            run.store.root.attrs["config"] = run.recorded_config()  # the latest settings
+            run.store.consolidate()
+    except OSError as exc:
+        raise write_error(run.location, exc) from None

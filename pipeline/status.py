@@ -1,24 +1,45 @@
-"""Stage ``status`` (and ``box status``): what a store holds, per stage and per array."""
+"""Stage ``status`` (and ``box status``): what a store holds, per stage and per array, and
+every damage found (read-only: works on stores that cannot be written)."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import zarr
+import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from pipeline.store import ScoreStore, StoreLock
+from pipeline import integrity
+from pipeline.integrity import Damage
+from pipeline.store import BLOCK_DIMS, ScoreStore, StoreError, StoreLock
 
 STAGE_GROUPS = {"instances": "instances", "raw": "raw", "constraints": "constraints",
                 "scores": "scores", "evaluate": "evaluation"}
 
 
-def _arrays(store: ScoreStore, group: str):
-    if not (store.path / group / "zarr.json").exists():
-        return []
-    g = zarr.open_group(store.path / group, mode="r", use_consolidated=False)
-    return sorted(g.arrays(), key=lambda kv: kv[0])
+def _damage(store: ScoreStore, stage: str, group: str) -> Damage:
+    if group in BLOCK_DIMS:
+        if not store.has_table(group) and store.layout_version >= 2 \
+                and store.stage_info(stage) is not None:
+            damage = Damage()
+            damage.add("missing", f"{integrity.GROUP}/{group}", ())
+            return damage
+        if store.has_table(group) or store.has_group(group):
+            whole = not store.has(f"{group}/done")  # instances, constraints
+            return store.verify(group, expect_all=whole and store.stage_info(stage) is not None)
+        return Damage()
+    outputs = (store.stage_info(stage) or {}).get("outputs")
+    if outputs is not None:
+        return store.verify_whole(outputs)
+    return store._verify_decoding(group)  # noqa: SLF001 (an evaluation of layout 1)
+
+
+def refuse_damaged(store: ScoreStore, stages=("instances", "constraints", "scores")) -> None:
+    """Raise StoreError naming the damaged arrays of ``stages`` (for readers such as
+    ``box export`` that must not hand damaged values on)."""
+    found = [_damage(store, stage, STAGE_GROUPS[stage]) for stage in stages]
+    named = "; ".join(d.describe() for d in found if d)
+    if named:
+        raise StoreError(f"store {store.path} is damaged: {named}; re-run the pipeline "
+                         "command that made it to repair it (box status shows the damage)")
 
 
 def collect(path) -> dict:
@@ -26,34 +47,49 @@ def collect(path) -> dict:
     store = ScoreStore.open(path)
     attrs = store.attrs
     report = {"path": str(store.path), "config_hash": attrs.get("config_hash"),
-              "created": attrs.get("created"), "running": StoreLock(store.path).held_by_other(),
-              "stages": {}, "arrays": []}
+              "created": attrs.get("created"), "layout_version": store.layout_version,
+              "running": StoreLock(store.location).held_by_other(), "stages": {},
+              "arrays": [], "damaged": {}}
+    damage = Damage()
     for stage, group in STAGE_GROUPS.items():
         info = attrs.get("stages", {}).get(stage)
         entry = {"finished": info.get("finished") if info else None}
-        has_done = store.has(f"{group}/done")
-        if has_done:
-            done = store.done(group)
+        if store.has(f"{group}/done"):
+            try:
+                done = store.done(group)
+            except Exception:  # noqa: BLE001 (a damaged mask: reported below)
+                done = np.zeros(store.array(f"{group}/done").shape, dtype=bool)
             entry["done"], entry["total"] = int(done.sum()), int(done.size)
         report["stages"][stage] = entry
-        corrupted: dict[str, int] = {}
-        if has_done:
-            blocks, _ = store.blocks(group)
-            for name, _ in _arrays(store, group):
-                corrupted[name] = len(store.corrupted_blocks(group, [name], blocks))
-        for name, arr in _arrays(store, group):
+        found = _damage(store, stage, group)
+        for kind in ("corrupted", "missing"):
+            for array, blocks in getattr(found, kind).items():
+                getattr(damage, kind).setdefault(array, set()).update(blocks)
+    for group in (*STAGE_GROUPS.values(), integrity.GROUP):
+        for key in store.arrays_under(group):
+            arr = store.array(key)
             report["arrays"].append({
-                "array": f"{group}/{name}", "shape": list(arr.shape),
+                "array": key, "shape": list(arr.shape),
                 "dims": list(arr.metadata.dimension_names or ()),
                 "chunks_written": int(arr.nchunks_initialized), "chunks": int(arr.nchunks),
-                "corrupted": corrupted.get(name, 0)})
+                "corrupted": len(damage.corrupted.get(key, ())),
+                "missing": len(damage.missing.get(key, ()))})
+    for key in damage.arrays:
+        report["damaged"][key] = {"corrupted": len(damage.corrupted.get(key, ())),
+                                  "missing": len(damage.missing.get(key, ()))}
     return report
 
 
+def damaged(report: dict) -> str:
+    """The damaged arrays of a status report in words ("" when there is none)."""
+    return "; ".join(f"{key} ({', '.join(f'{n} {kind}' for kind, n in counts.items() if n)} "
+                     "blocks)" for key, counts in report["damaged"].items())
+
+
 def print_status(path, console: Console) -> dict:
-    report = collect(Path(path))
+    report = collect(path)
     console.print(f"store {report['path']}  config {report['config_hash']}  created "
-                  f"{report['created']}", highlight=False)
+                  f"{report['created']}  layout {report['layout_version']}", highlight=False)
     console.print(f"running: {report['running'] or 'no'}", highlight=False)
     stages = Table(title="stages")
     for col in ("stage", "state", "entries done", "finished at"):
@@ -70,13 +106,15 @@ def print_status(path, console: Console) -> dict:
         stages.add_row(stage, state, progress, entry["finished"] or "-")
     console.print(stages)
     arrays = Table(title="arrays")
-    for col in ("array", "dims", "shape", "chunks written", "corrupted"):
+    for col in ("array", "dims", "shape", "chunks written", "corrupted", "missing"):
         arrays.add_column(col)
     for a in report["arrays"]:
         bad = f"[red]{a['corrupted']}" if a["corrupted"] else "0"
+        gone = f"[red]{a['missing']}" if a["missing"] else "0"
         arrays.add_row(a["array"], ", ".join(a["dims"]), " x ".join(map(str, a["shape"])),
-                       f"{a['chunks_written']}/{a['chunks']}", bad)
+                       f"{a['chunks_written']}/{a['chunks']}", bad, gone)
     console.print(arrays)
-    if any(a["corrupted"] for a in report["arrays"]):
-        console.print("[red]corrupted chunks found: re-run the same command to recompute them")
+    if report["damaged"]:
+        console.print(f"[red]corrupted chunks found: {damaged(report)}; re-run the same "
+                      "command to recompute them", highlight=False)
     return report

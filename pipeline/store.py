@@ -1,33 +1,34 @@
-"""The Zarr v3 score store: layout, identity checks, the run lock and integrity checks.
+"""The Zarr v3 score store: layout, identity checks, block writes and integrity checks.
 
-Layout (a contract: users open it with ``xarray.open_zarr(path, group=...)``)::
+Layout (a contract: users open it with ``xarray.open_zarr(path, group=...)`` or
+``xarray.open_datatree(path, engine="zarr")``)::
 
     /                 attrs: format, layout_version, identity, config_hash, config,
                              versions, git_revision, created, stages
     instances/        seed (instance), spec (instance; JSON text)
-    raw/              score length feasible time status checks tries (instance),
-                      constraint (instance, feature), done (instance)
-    constraints/      theta (constraint, feature), source_instance (constraint)
-    scores/           score length feasible time status checks (instance, constraint),
-                      done (instance, constraint)
+    raw/              score length feasible time status checks step tries (instance),
+                      constraint (instance, feature), done (instance);
+                      coordinates instance_seed (instance), feature (feature)
+    constraints/      theta (constraint, feature), source_instance (constraint);
+                      coordinate feature (feature)
+    scores/           score length feasible time status checks step done
+                      (instance, constraint); coordinates instance_seed (instance),
+                      constraint_source (constraint)
     evaluation/       per selector: order, first_feasible_step, first_feasible_time,
-                      best_score; time_grid; attrs: summary
+                      best_score; time_grid; eligible; optimal_score
+    integrity/        per block group a table of chunk digests (pipeline/integrity.py)
 
-Who writes what (DESIGN.md §5): only the coordinating process creates arrays and writes
-attributes and ``done`` masks, all before or after the workers' tasks; a task writes
-exactly its own whole chunks.  A chunk's existence proves nothing (all-fill chunks are
-not written), so completion is read from ``done`` only.  Every chunk carries a CRC32C
-checksum; a chunk that fails it is reported by ``status`` and recomputed on resume.
+Who writes what (DESIGN.md §5): workers compute and return arrays; only the coordinating
+process writes the store (arrays, ``done`` masks, integrity records, attributes).  A block
+is written in the order data chunks, integrity row, ``done``: a run killed in between
+leaves a block that is simply computed again.  Every chunk is written even when it holds
+only fill values, carries a CRC32C checksum, and has its values' digest recorded.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
-import fcntl
-import json
-import os
-import shutil
-import socket
+import errno
 import subprocess
 import warnings
 from dataclasses import dataclass
@@ -38,21 +39,23 @@ import numpy as np
 import zarr
 from zarr.codecs import Crc32cCodec, ZstdCodec
 
+from pipeline import integrity
+from pipeline.errors import LockError, StoreDamaged, StoreError  # noqa: F401 (re-exported)
+from pipeline.integrity import BlockLayout, Damage, digest
+from pipeline.location import Location, locate
+from pipeline.locking import LOCK_SUFFIX, StoreLock  # noqa: F401 (re-exported)
 from pipeline.planning import Status
 
 FORMAT = "box-planning-score-store"
-LAYOUT_VERSION = 1
-LOCK_SUFFIX = ".lock"
+#: 1: the first layout; 2: integrity tables, coordinates, every chunk written.
+LAYOUT_VERSION = 2
 CODECS = (ZstdCodec(level=3), Crc32cCodec())
-
-
-class StoreError(Exception):
-    """A store that cannot be used as asked (its message says why)."""
+WRITE_CONFIG = {"write_empty_chunks": True}
 
 
 @dataclass(frozen=True)
 class Column:
-    """One array of a result group: dtype, fill value, extra trailing dimension if any."""
+    """One array of a result group: dtype, fill value."""
 
     dtype: str
     fill: object
@@ -68,6 +71,10 @@ RESULT_COLUMNS = {
     "checks": Column("int64", 0),
     "step": Column("int8", -1),  # index into the domain's steps of the one that failed; -1: none
 }
+
+#: The block axes of each block group.
+BLOCK_DIMS = {"instances": ("instance",), "raw": ("instance",),
+              "constraints": ("constraint",), "scores": ("instance", "constraint")}
 
 
 def block_region(block: tuple[int, ...], chunks: tuple[int, ...]) -> tuple[slice, ...]:
@@ -103,87 +110,59 @@ def git_revision() -> str | None:
     return res.stdout.strip() or None
 
 
-class StoreLock:
-    """An exclusive lock on a store for one run (``flock``: released by the kernel when the
-    holder dies, so a killed run never keeps it; unlike POSIX record locks it is not
-    dropped when the same process closes another descriptor of the file).  The lock file
-    sits next to the store (``<store>.lock``): inside, Zarr would warn about a foreign
-    object."""
-
-    def __init__(self, path: Path):
-        path = Path(path)
-        self.path = path.with_name(path.name + LOCK_SUFFIX)
-        self._fd: int | None = None
-
-    def acquire(self) -> None:
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            holder = os.read(fd, 4096).decode(errors="replace").strip() or "another process"
-            os.close(fd)
-            raise StoreError(f"store {self.path.with_suffix('')} is in use by a running pipeline "
-                             f"({holder}); wait for it or stop it first") from None
-        os.ftruncate(fd, 0)
-        os.write(fd, f"pid {os.getpid()} on {socket.gethostname()} since {now()}".encode())
-        self._fd = fd
-
-    def release(self) -> None:
-        if self._fd is not None:
-            os.close(self._fd)  # closing drops the lock
-            self._fd = None
-
-    def held_by_other(self) -> str | None:
-        """Who holds the lock, or None when nobody does (does not keep the lock)."""
-        if not self.path.exists():
-            return None
-        fd = os.open(self.path, os.O_RDWR)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            return os.read(fd, 4096).decode(errors="replace").strip() or "another process"
-        finally:
-            os.close(fd)
-        return None
-
-    def __enter__(self):
-        self.acquire()
-        return self
-
-    def __exit__(self, *exc):
-        self.release()
+def write_error(location, exc: OSError) -> StoreError:
+    """A one-line StoreError for an OSError met while writing the store."""
+    if exc.errno == errno.ENOSPC:
+        why = "no space left on the device"
+    elif exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM) or isinstance(exc,
+                                                                             PermissionError):
+        why = "the store is read-only (permission denied)"
+    else:
+        why = (exc.strerror or str(exc)).splitlines()[0]
+    return StoreError(f"cannot write store {location}: {why}; finished blocks are kept: fix "
+                      "it and re-run the same command to resume")
 
 
-def _is_ours(path: Path) -> bool:
-    meta = path / "zarr.json"
+def _root_attrs(location: Location) -> dict | None:
+    """The root attributes if ``location`` holds a Zarr group, else None."""
     try:
-        attrs = json.loads(meta.read_text()).get("attributes", {})
-    except (OSError, ValueError):
-        return False
-    return attrs.get("format") == FORMAT
+        root = zarr.open_group(store=location.zarr_store(read_only=True), mode="r",
+                               use_consolidated=False)
+    except Exception:  # noqa: BLE001 (anything unreadable is not ours)
+        return None
+    return dict(root.attrs)
 
 
-def check_is_ours(path: Path) -> None:
-    path = Path(path)
-    if not path.exists():
-        raise StoreError(f"no store at {path}")
-    if not path.is_dir() or not _is_ours(path):
-        raise StoreError(f"{path} is not a score store made by this pipeline; left untouched")
+def check_is_ours(path) -> None:
+    location = locate(path)
+    if location.local is not None and location.local.exists() and not location.local.is_dir():
+        raise StoreError(f"{location} is not a score store made by this pipeline; "
+                         "left untouched")
+    if not location.exists():
+        raise StoreError(f"no store at {location}")
+    if (_root_attrs(location) or {}).get("format") != FORMAT:
+        raise StoreError(f"{location} is not a score store made by this pipeline; "
+                         "left untouched")
 
 
 class ScoreStore:
-    """A store on disk; open it with :meth:`open` (read) or :meth:`prepare` (a run)."""
+    """A store; open it with :meth:`open` (read) or :meth:`prepare` (a run)."""
 
-    def __init__(self, path: Path):
-        self.path = Path(path)
-        self.root = zarr.open_group(self.path, mode="r+", use_consolidated=False)
+    def __init__(self, location, read_only: bool = False):
+        self.location = locate(location)
+        self.path = self.location.path
+        self.read_only = read_only
+        self.zstore = self.location.zarr_store(read_only=read_only)
+        self.root = zarr.open_group(store=self.zstore, mode="r" if read_only else "r+",
+                                    use_consolidated=False)
+        self._arrays: dict[str, zarr.Array] = {}
 
     # -- opening ---------------------------------------------------------------------------
     @classmethod
-    def open(cls, path) -> ScoreStore:
+    def open(cls, path, read_only: bool = True) -> ScoreStore:
         """An existing store of ours (for status, evaluation, export)."""
-        check_is_ours(Path(path))
-        return cls(path)
+        check_is_ours(path)
+        return cls(path, read_only=read_only)
 
     @classmethod
     def prepare(cls, path, identity: dict, config: dict, overwrite: bool) -> ScoreStore:
@@ -195,33 +174,36 @@ class ScoreStore:
         """
         from pipeline.configs import config_hash, differing_keys
 
-        path = Path(path)
-        if path.exists() and any(path.iterdir()):
-            check_is_ours(path)
-            store = cls(path)
+        location = locate(path)
+        if not location.is_empty():
+            check_is_ours(location)
+            store = cls(location)
             stored = store.attrs.get("identity")
             if stored == identity:
-                return store
+                return store  # the caller migrates an older layout (pipeline/migrate.py)
             if not overwrite:
                 keys = differing_keys(stored or {}, identity)
                 raise StoreError(
-                    f"store {path} was made with a different config (differing keys: "
+                    f"store {location} was made with a different config (differing keys: "
                     f"{', '.join(keys)}); use another store.path, or store.mode=overwrite "
                     "to replace it")
-            shutil.rmtree(path)
-        path.mkdir(parents=True, exist_ok=True)
-        root = zarr.open_group(path, mode="a", use_consolidated=False)
+        root = zarr.open_group(store=location.zarr_store(read_only=False), mode="w",
+                               use_consolidated=False)
         root.attrs.update({
             "format": FORMAT, "layout_version": LAYOUT_VERSION, "identity": identity,
             "config_hash": config_hash(identity), "config": config, "versions": versions(),
             "git_revision": git_revision(), "created": now(), "stages": {},
         })
-        return cls(path)
+        return cls(location)
 
     # -- attributes and stages -------------------------------------------------------------
     @property
     def attrs(self) -> dict:
         return dict(self.root.attrs)
+
+    @property
+    def layout_version(self) -> int:
+        return int(self.attrs.get("layout_version", 1))
 
     def stage_info(self, stage: str) -> dict | None:
         return self.attrs.get("stages", {}).get(stage)
@@ -231,6 +213,12 @@ class ScoreStore:
         stages[stage] = {"finished": now(), **info}
         self.root.attrs["stages"] = stages
 
+    def update_stage(self, stage: str, **info) -> None:
+        """Add ``info`` to a finished stage's record."""
+        stages = dict(self.attrs.get("stages", {}))
+        stages[stage] = {**stages[stage], **info}
+        self.root.attrs["stages"] = stages
+
     def forget_stage(self, stage: str) -> None:
         stages = dict(self.attrs.get("stages", {}))
         if stages.pop(stage, None) is not None:
@@ -238,10 +226,28 @@ class ScoreStore:
 
     # -- arrays ----------------------------------------------------------------------------
     def has(self, key: str) -> bool:
-        return (self.path / key / "zarr.json").exists()
+        try:
+            return isinstance(self.root[key], zarr.Array)
+        except KeyError:
+            return False
 
-    def array(self, key: str, mode: str = "r") -> zarr.Array:
-        return zarr.open_array(self.path / key, mode=mode)
+    def has_group(self, key: str) -> bool:
+        try:
+            return isinstance(self.root[key], zarr.Group)
+        except KeyError:
+            return False
+
+    def array(self, key: str, mode: str = "r") -> zarr.Array:  # noqa: ARG002 (kept for callers)
+        """The array at ``key`` (opened once per store object; writes keep empty chunks)."""
+        arr = self._arrays.get(key)
+        if arr is None:
+            arr = self.root[key]
+            if not isinstance(arr, zarr.Array):
+                raise KeyError(key)
+            if not self.read_only:
+                arr = arr.with_config(WRITE_CONFIG)
+            self._arrays[key] = arr
+        return arr
 
     def create(self, key: str, shape, chunks, dtype, fill, dims, **attrs) -> zarr.Array:
         """A new array at ``key`` (replacing any left by an interrupted run)."""
@@ -249,27 +255,278 @@ class ScoreStore:
         parent = self.root.require_group(group)
         arr = parent.create_array(name, shape=tuple(shape), chunks=tuple(chunks), dtype=dtype,
                                   fill_value=fill, dimension_names=tuple(dims),
-                                  compressors=CODECS, overwrite=True)
+                                  compressors=CODECS, overwrite=True, config=WRITE_CONFIG)
         if attrs:
             arr.attrs.update(attrs)
+        self._arrays[key] = arr
         return arr
 
-    def create_results(self, group: str, shape, chunks, dims, steps=()) -> None:
-        """The per-entry result arrays of ``group`` plus its ``done`` mask; ``steps``: the
-        domain's planning steps, which the ``step`` array indexes."""
+    def remove(self, key: str) -> None:
+        """Delete a group or array and everything under it (any store kind)."""
+        if key in self.root:
+            del self.root[key]
+        self._arrays = {k: v for k, v in self._arrays.items()
+                        if k != key and not k.startswith(key + "/")}
+
+    def create_results(self, group: str, shape, chunks, dims, steps=(), extra=(),
+                       coords: dict | None = None) -> None:
+        """The per-entry result arrays of ``group``, its ``done`` mask, coordinates and
+        integrity table.  ``steps``: the domain's planning steps, which ``step`` indexes;
+        ``extra``: (name, shape, chunks, dtype, fill, dims, attrs) of further result arrays;
+        ``coords``: name -> (dims, values, attrs) of coordinate arrays."""
+        coords = coords or {}
+        names = []
         for name, col in RESULT_COLUMNS.items():
-            extra = {}
+            attrs = {}
             if name == "status":
-                extra = {"flag_values": [s.value for s in Status],
-                         "flag_meanings": " ".join(Status.names()),
-                         "not_computed": -1}
+                attrs = flag_attrs([s.value for s in Status], Status.names(), not_computed=-1)
             elif name == "step":
-                extra = {"flag_values": list(range(len(steps))),
-                         "flag_meanings": " ".join(steps), "none": -1}
-            self.create(f"{group}/{name}", shape, chunks, col.dtype, col.fill, dims, **extra)
+                attrs = flag_attrs(list(range(len(steps))), steps, none=-1)
+            self.create(f"{group}/{name}", shape, chunks, col.dtype, col.fill, dims, **attrs)
+            names.append(name)
+        for name, shp, chk, dtype, fill, dms, attrs in extra:
+            self.create(f"{group}/{name}", shp, chk, dtype, fill, dms, **attrs)
+            names.append(name)
         self.create(f"{group}/done", shape, chunks, "bool", False, dims,
                     description="entries whose block finished (written by the coordinator)")
+        names.append("done")
+        self.write_coords(group, coords, names)
+        self.create_table(group, [*names, *coords])
 
+    def write_coords(self, group: str, coords: dict, data_names) -> None:
+        """Coordinate arrays of ``group`` (chunked like the block axes), named in each data
+        array's ``coordinates`` attribute so that xarray makes them coordinates."""
+        for name, (dims, values, attrs) in coords.items():
+            values = np.asarray(values)
+            chunks = (self._block_size(group, dims[0], len(values)),)  # 1-D coordinates
+            dtype = str if values.dtype.kind in "OUT" else values.dtype
+            fill = "" if dtype is str else (np.nan if values.dtype.kind == "f" else 0)
+            self.create(f"{group}/{name}", values.shape, chunks, dtype, fill, dims,
+                        **attrs)[...] = values
+        listed = " ".join(n for n in coords if n not in dims_of_coords(coords))
+        if listed:
+            for name in data_names:
+                self.array(f"{group}/{name}").attrs["coordinates"] = listed
+
+    def _block_size(self, group: str, dim: str, length: int) -> int:
+        if dim in BLOCK_DIMS.get(group, ()):
+            ref = self._reference_array(group)
+            return ref.chunks[list(ref.metadata.dimension_names).index(dim)]
+        return max(length, 1)
+
+    def _reference_array(self, group: str) -> zarr.Array:
+        for name in ("done", "theta", "seed"):
+            if self.has(f"{group}/{name}"):
+                return self.array(f"{group}/{name}")
+        raise KeyError(f"{group} has no array to take block sizes from")
+
+    # -- blocks and integrity ------------------------------------------------------------
+    def layout(self, group: str) -> BlockLayout:
+        table = self.array(f"{integrity.GROUP}/{group}")
+        return BlockLayout(group, tuple(table.attrs["block_dims"]),
+                           tuple(table.attrs["arrays"]))
+
+    def has_table(self, group: str) -> bool:
+        return self.has(f"{integrity.GROUP}/{group}")
+
+    def create_table(self, group: str, names) -> None:
+        """An empty integrity table for the block group ``group`` covering ``names``."""
+        dims = BLOCK_DIMS[group]
+        ref = self._reference_array(group)
+        ref_dims = list(ref.metadata.dimension_names)
+        grid = tuple(ref.cdata_shape[ref_dims.index(d)] for d in dims)
+        self.create(f"{integrity.GROUP}/{group}", (*grid, len(names)),
+                    (*(1,) * len(grid), len(names)), "uint64", 0,
+                    (*(f"{d}_block" for d in dims), f"{group}_array"),
+                    block_dims=list(dims), arrays=list(names),
+                    description="digest of each array's chunk per block (0: not recorded)")
+
+    def grid(self, group: str) -> tuple[int, ...]:
+        return self.array(f"{integrity.GROUP}/{group}").shape[:-1]
+
+    def _chunk(self, layout: BlockLayout, name: str, block) -> tuple[zarr.Array, tuple]:
+        arr = self.array(f"{layout.group}/{name}")
+        return arr, layout.chunk_of(arr.metadata.dimension_names, block)
+
+    def write_block(self, group: str, block, arrays: dict[str, np.ndarray]) -> None:
+        """Write one finished block: data chunks, then its integrity row, then ``done``."""
+        layout = self.layout(group)
+        row = np.zeros(len(layout.names), dtype="uint64")
+        done_region = None
+        for k, name in enumerate(layout.names):
+            arr, chunk = self._chunk(layout, name, block)
+            region = block_region(chunk, arr.chunks)
+            if name == "done":
+                done_region = region
+                values = np.ones(_shape(region, arr.shape), dtype=bool)
+            elif name in arrays:
+                values = np.asarray(arrays[name], dtype=arr.dtype)
+                arr[region] = values
+            else:  # a coordinate, written at creation
+                values = arr.blocks[chunk]
+            row[k] = digest(values)
+        self.array(f"{integrity.GROUP}/{group}")[tuple(block)] = row
+        if done_region is not None:
+            self.array(f"{group}/done")[done_region] = True
+
+    def record_blocks(self, group: str, blocks=None) -> None:
+        """Record the digests of ``blocks`` (all) as they are now (for groups written
+        whole by the coordinator, right after writing them)."""
+        layout = self.layout(group)
+        table = self.array(f"{integrity.GROUP}/{group}")
+        rows = np.zeros(table.shape, dtype="uint64") if blocks is None else table[...]
+        for block in (np.ndindex(*table.shape[:-1]) if blocks is None else blocks):
+            for k, name in enumerate(layout.names):
+                arr, chunk = self._chunk(layout, name, block)
+                rows[tuple(block) + (k,)] = digest(arr.blocks[chunk])
+        table[...] = rows
+
+    def finished_blocks(self, group: str) -> list[tuple[int, ...]]:
+        """Blocks whose integrity row is recorded (readable and complete)."""
+        table = self.array(f"{integrity.GROUP}/{group}")
+        out = []
+        for block in np.ndindex(*table.shape[:-1]):
+            try:
+                row = table.blocks[(*block, 0)]
+            except Exception:  # noqa: BLE001 (an unreadable row: not finished)
+                continue
+            if np.all(row != integrity.NOT_RECORDED):
+                out.append(block)
+        return out
+
+    def verify(self, group: str, blocks=None, expect_all: bool = False) -> Damage:
+        """Damage in the recorded ``blocks`` (default: all) of ``group``.  A block without a
+        readable record counts as damage of the record when the block should have one:
+        its ``done`` mask says so, or ``expect_all`` (a finished group written whole)."""
+        damage = Damage()
+        if not self.has_table(group):
+            return self._verify_decoding(group)
+        table_key = f"{integrity.GROUP}/{group}"
+        table = self.array(table_key)
+        layout = self.layout(group)
+        gone = set(self.missing_arrays(group))
+        written = {name: self.chunk_keys(f"{group}/{name}") for name in layout.names
+                   if name not in gone}
+        done = self._done_blocks(group) if not expect_all else None
+        if blocks is None:
+            blocks = list(np.ndindex(*table.shape[:-1]))
+        for block in blocks:
+            expected = expect_all or (done is not None and block in done)
+            try:
+                row = table.blocks[(*block, 0)].reshape(-1)
+            except Exception:  # noqa: BLE001
+                damage.add("corrupted", table_key, block)
+                continue
+            if not np.all(row != integrity.NOT_RECORDED):
+                if expected:
+                    damage.add("missing", table_key, block)
+                continue  # not finished: nothing to verify
+            for k, name in enumerate(layout.names):
+                key = f"{group}/{name}"
+                if name in gone:
+                    damage.add("missing", key, block)
+                    continue
+                arr, chunk = self._chunk(layout, name, block)
+                if arr.metadata.encode_chunk_key(chunk) not in written[name]:
+                    damage.add("missing", key, block)
+                    continue
+                try:
+                    values = arr.blocks[chunk]
+                except Exception:  # noqa: BLE001 (any decoding failure means corrupt)
+                    damage.add("corrupted", key, block)
+                    continue
+                if digest(values) != int(row[k]):
+                    damage.add("corrupted", key, block)
+        return damage
+
+    def missing_arrays(self, group: str) -> list[str]:
+        """Arrays that the integrity table of ``group`` covers but that are gone."""
+        return [name for name in self.layout(group).names if not self.has(f"{group}/{name}")]
+
+    def _done_blocks(self, group: str) -> set:
+        """Blocks whose ``done`` mask is all set (that mask's own damage aside)."""
+        if not self.has(f"{group}/done"):
+            return set(np.ndindex(*self.grid(group)))  # the mask is gone: all were done
+        mask = self.array(f"{group}/done")
+        out = set()
+        for block in np.ndindex(*mask.cdata_shape):
+            try:
+                if mask.blocks[block].all():
+                    out.add(block)
+            except Exception:  # noqa: BLE001 (found as damage of done itself)
+                continue
+        return out
+
+    def _verify_decoding(self, group: str) -> Damage:
+        """Layout 1 (no integrity table): chunks of finished blocks must decode."""
+        damage = Damage()
+        if not self.has_group(group):
+            return damage
+        g = self.root[group]
+        for name, arr in g.arrays():
+            for chunk in np.ndindex(*arr.cdata_shape):
+                try:
+                    arr.blocks[chunk]
+                except Exception:  # noqa: BLE001
+                    damage.add("corrupted", f"{group}/{name}", chunk)
+        return damage
+
+    def chunk_keys(self, key: str) -> set[str]:
+        """Chunk keys (relative to the array) that exist in the store."""
+        from zarr.core.sync import sync
+
+        prefix = f"{key}/"
+
+        async def collect():
+            return {k[len(prefix):] async for k in self.zstore.list_prefix(prefix)}
+
+        return sync(collect())
+
+    def array_digests(self, keys) -> dict[str, str]:
+        """A digest per array (of its recorded chunk digests, or of its values when it is
+        outside any block group): what a stage records about its inputs."""
+        out = {}
+        for key in keys:
+            group, name = key.split("/", 1)
+            if self.has_table(group) and name in self.layout(group).names:
+                k = self.layout(group).names.index(name)
+                out[key] = integrity.combine(
+                    self.array(f"{integrity.GROUP}/{group}")[..., k].reshape(-1))
+            else:
+                out[key] = f"{digest(self.array(key)[...]):016x}"
+        return out
+
+    def verify_whole(self, recorded: dict[str, str]) -> Damage:
+        """Damage among arrays recorded whole (``key -> hex digest``): missing arrays,
+        chunks that do not decode, values that differ."""
+        damage = Damage()
+        for key, expected in recorded.items():
+            if not self.has(key):
+                damage.add("missing", key, ())
+                continue
+            arr = self.array(key)
+            written = self.chunk_keys(key)
+            if any(arr.metadata.encode_chunk_key(c) not in written
+                   for c in np.ndindex(*arr.cdata_shape)):
+                damage.add("missing", key, ())
+                continue
+            try:
+                values = arr[...]
+            except Exception:  # noqa: BLE001
+                damage.add("corrupted", key, ())
+                continue
+            if f"{digest(values):016x}" != expected:
+                damage.add("corrupted", key, ())
+        return damage
+
+    def arrays_under(self, group: str) -> list[str]:
+        """Keys of every array under ``group`` (nested groups included)."""
+        if not self.has_group(group):
+            return []
+        return sorted(f"{group}/{path}" for path, _ in self.root[group].members(max_depth=None)
+                      if isinstance(self.root[f"{group}/{path}"], zarr.Array))
+
+    # -- the done masks --------------------------------------------------------------------
     def done(self, group: str) -> np.ndarray:
         return self.array(f"{group}/done")[...]
 
@@ -283,24 +540,55 @@ class ScoreStore:
         return finished, pending
 
     def set_done(self, group: str, region: tuple[slice, ...], value: bool = True) -> None:
-        self.array(f"{group}/done", mode="r+")[region] = value
+        self.array(f"{group}/done")[region] = value
 
-    def corrupted_blocks(self, group: str, names, blocks) -> list[tuple[int, ...]]:
-        """Blocks (chunk indices) among ``blocks`` whose chunk in any of ``names`` fails to
-        decode (checksum mismatch, truncated or garbage data)."""
-        bad = []
-        arrays = [self.array(f"{group}/{n}") for n in names]
+    def forget_blocks(self, group: str, blocks) -> None:
+        """Mark ``blocks`` as not computed (integrity row cleared first, then ``done``)."""
+        table = self.array(f"{integrity.GROUP}/{group}")
+        chunks = self.array(f"{group}/done").chunks
         for block in blocks:
-            for arr in arrays:
-                try:
-                    arr.blocks[block]
-                except Exception:  # noqa: BLE001 (any decoding failure means corrupt)
-                    bad.append(tuple(block))
-                    break
-        return bad
+            table[tuple(block)] = 0
+            self.set_done(group, block_region(block, chunks), False)
 
     def consolidate(self) -> None:
         """Consolidated metadata for readers (xarray); only between runs' stages."""
         with warnings.catch_warnings():  # "not part of the v3 spec yet": known, intended
             warnings.filterwarnings("ignore", message=".*[Cc]onsolidated metadata.*")
-            zarr.consolidate_metadata(self.path)
+            zarr.consolidate_metadata(self.zstore)
+
+
+def _shape(region: tuple[slice, ...], shape) -> tuple[int, ...]:
+    return tuple(len(range(*s.indices(n))) for s, n in zip(region, shape, strict=True))
+
+
+def flag_attrs(values, meanings, **special) -> dict:
+    """CF flag attributes: ``flag_values`` and ``flag_meanings`` decode codes to names."""
+    return {"flag_values": list(values), "flag_meanings": " ".join(meanings), **special}
+
+
+def dims_of_coords(coords: dict) -> set[str]:
+    """Coordinates named like their only dimension (xarray indexes them by themselves)."""
+    return {name for name, (dims, _, _) in coords.items() if tuple(dims) == (name,)}
+
+
+# -- coordinates (what xarray shows along each dimension) -----------------------------------
+def feature_names(domain, p: int) -> list[str]:
+    """Names of θ's features: the domain's ``feature_names`` when it has them."""
+    names = list(getattr(domain, "feature_names", None) or ())
+    return names if len(names) == p else [f"theta{k}" for k in range(p)]
+
+
+def instance_coord(seeds) -> dict:
+    return {"instance_seed": (("instance",), np.asarray(seeds, dtype="int64"),
+                              {"description": "seed the instance was sampled from"})}
+
+
+def feature_coord(names) -> dict:
+    return {"feature": (("feature",), np.asarray(names, dtype=str),
+                        {"description": "feature of a constraint θ"})}
+
+
+def source_coord(sources) -> dict:
+    return {"constraint_source": (("constraint",), np.asarray(sources, dtype="int64"),
+                                  {"description": "instance whose raw solution gave the "
+                                                  "constraint; -1: a fixed set"})}

@@ -1,35 +1,23 @@
-"""What a Dask task runs: one block of planning calls, written as whole chunks.
+"""What a Dask task runs: one block of planning calls, returned as arrays.
 
-Tasks are pure functions of their arguments (plain data) and the store's read-only
-inputs, so a task retried after a worker died writes exactly the same values.  The domain
-(and with it any simulator client) is built once per worker process and cached.
+Tasks are pure functions of plain inputs (the domain spec, the block's instance specs and
+seeds, its θ rows): they never open the store, so workers need no access to it, and a
+retried or duplicated task returns exactly the same values.  Only the coordinating process
+writes what they return (DESIGN.md §5).  The domain (and with it any simulator client) is
+built once per worker process and cached.
 """
 
 from __future__ import annotations
 
-import functools
 import json
 import time
 from collections import Counter
 
 import numpy as np
 
-from pipeline.domains import load_domain
+from pipeline.domains.cache import domain_for
 from pipeline.planning import PlanResult, Status
-from pipeline.store import RESULT_COLUMNS, ScoreStore
-
-
-@functools.lru_cache(maxsize=4)
-def _domain(name: str, domain_json: str, planner_json: str):
-    """One domain object per process and configuration (the per-process simulator cache)."""
-    return load_domain(name, planner=json.loads(planner_json), **json.loads(domain_json))
-
-
-def domain_for(spec: dict):
-    """``spec``: {"name", "config", "planner"} as plain data (what tasks receive)."""
-    return _domain(spec["name"], json.dumps(spec["config"], sort_keys=True),
-                   json.dumps(spec["planner"], sort_keys=True))
-
+from pipeline.store import RESULT_COLUMNS
 
 #: Stands in for the constraint index in the seed of RAWPLANNER's call on an instance.
 RAW_ENTRY = 2**40
@@ -54,55 +42,48 @@ def _results_block(results: list[PlanResult], shape, steps=()) -> dict[str, np.n
     return out
 
 
-def _write(store: ScoreStore, group: str, region, arrays: dict[str, np.ndarray]) -> None:
-    for name, values in arrays.items():
-        store.array(f"{group}/{name}", mode="r+")[region] = values
-
-
-def score_block(store_path: str, domain_spec: dict, run_seed: int, rows: tuple[int, int],
-                cols: tuple[int, int]) -> dict:
-    """Plan every entry of D[rows, cols] and write the block's chunks."""
+def score_block(domain_spec: dict, run_seed: int, specs: list[str], seeds: list[int],
+                theta: np.ndarray, first_constraint: int) -> tuple[dict, dict]:
+    """Plan every entry of the block (instances ``specs``/``seeds`` x θ rows ``theta``,
+    whose first row is constraint ``first_constraint``); return (arrays, report)."""
     t0 = time.perf_counter()
-    store = ScoreStore(store_path)
-    specs = store.array("instances/spec")[rows[0]:rows[1]]
-    seeds = store.array("instances/seed")[rows[0]:rows[1]]
-    theta = store.array("constraints/theta")[cols[0]:cols[1]]
     skip = domain_spec["planner"]["name"] == "noop"
     domain = None if skip else domain_for(domain_spec)
+    shape = (len(specs), len(theta))
+    if skip:
+        arrays = _results_block([], shape)
+        arrays["status"][...] = int(Status.SKIPPED)
+        arrays["time"][...] = 0.0
+        return arrays, _report(Counter({Status.SKIPPED.name.lower(): arrays["status"].size}),
+                               [], t0)
     results = []
     for spec, inst_seed in zip(specs, seeds, strict=True):
-        instance = None if skip else domain.check_instance(json.loads(str(spec)))
-        for j, row in enumerate(theta, start=cols[0]):
-            if skip:
-                results.append(PlanResult(Status.SKIPPED))
-            else:
-                results.append(domain.plan(instance, row, seed=entry_seed(run_seed,
-                                                                         int(inst_seed), j)))
-    shape = (rows[1] - rows[0], cols[1] - cols[0])
-    steps = domain.steps if domain else ()
-    _write(store, "scores", (slice(*rows), slice(*cols)), _results_block(results, shape, steps))
-    return _report(results, t0)
+        instance = domain.check_instance(json.loads(spec))
+        for j, row in enumerate(theta, start=first_constraint):
+            results.append(domain.plan(instance, row,
+                                       seed=entry_seed(run_seed, int(inst_seed), j)))
+    return _results_block(results, shape, domain.steps), _summary(results, t0)
 
 
-def raw_block(store_path: str, domain_spec: dict, run_seed: int, rows: tuple[int, int]) -> dict:
-    """RAWPLANNER on instances[rows]; writes the raw results and extracted constraints."""
+def raw_block(domain_spec: dict, run_seed: int, specs: list[str],
+              seeds: list[int]) -> tuple[dict, dict]:
+    """RAWPLANNER on the given instances; return (raw result arrays, report)."""
     t0 = time.perf_counter()
-    store = ScoreStore(store_path)
-    specs = store.array("instances/spec")[rows[0]:rows[1]]
-    seeds = store.array("instances/seed")[rows[0]:rows[1]]
     domain = domain_for(domain_spec)
-    raws = [domain.raw_plan(domain.check_instance(json.loads(str(spec))),
+    raws = [domain.raw_plan(domain.check_instance(json.loads(spec)),
                             seed=entry_seed(run_seed, int(s), RAW_ENTRY))
             for spec, s in zip(specs, seeds, strict=True)]
-    region = slice(*rows)
     arrays = _results_block([r.plan for r in raws], (len(raws),), domain.steps)
     arrays["tries"] = np.array([r.tries for r in raws], dtype="int32")
-    _write(store, "raw", region, arrays)
-    store.array("raw/constraint", mode="r+")[region] = np.stack([r.constraint for r in raws])
-    return _report([r.plan for r in raws], t0)
+    arrays["constraint"] = np.stack([r.constraint for r in raws]).astype("float64")
+    return arrays, _summary([r.plan for r in raws], t0)
 
 
-def _report(results: list[PlanResult], t0: float) -> dict:
-    return {"n": len(results), "status": dict(Counter(r.status.name.lower() for r in results)),
-            "errors": sorted({r.error for r in results if r.error})[:3],
+def _summary(results: list[PlanResult], t0: float) -> dict:
+    return _report(Counter(r.status.name.lower() for r in results),
+                   sorted({r.error for r in results if r.error})[:3], t0)
+
+
+def _report(status: Counter, errors: list[str], t0: float) -> dict:
+    return {"n": sum(status.values()), "status": dict(status), "errors": errors,
             "seconds": time.perf_counter() - t0}

@@ -68,16 +68,25 @@ def box_order(train, truth, k, c=1.96):
     return ucb_order(mu, S, truth, k, lambda t: (c, 1.0))
 
 
+def pembo_zeta(t, N, delta=0.01):
+    """PEM-BO's zeta_t as the authors' AutomaticZetaUCB computes it, with box_core's
+    documented continuation (N - t - 1 held at the smallest value where it is defined)."""
+    L6 = math.log(6 / delta)
+    r_min = 2
+    while 2 * math.sqrt(L6 / r_min) >= 1:
+        r_min += 1
+    r = max(N - t - 1, r_min)
+    iota = math.sqrt(6 * (N - 2 + t + 2 * math.sqrt(t * L6) + 2 * L6) / (delta * N * (r - 1)))
+    b = L6 / r
+    return (iota + math.sqrt(2 * math.log(3 / delta))) / math.sqrt(1 - 2 * math.sqrt(b))
+
+
 def pembo_order(train, truth, k, delta=0.01):
     mu, S = fit(train)
     N = train.shape[0]
-    L = math.log(4 / delta)
 
-    def coef(t):
-        it = t + 1
-        zeta = math.sqrt(6 * (N - 3 + it + 2 * math.sqrt(it * L) + 2 * L)
-                         / (delta * N * max(N - it - 1, 1))) + math.sqrt(2 * L)
-        return zeta, (N - 1) / max(N - t - 1, 1)
+    def coef(t):  # t observations so far
+        return pembo_zeta(t, N, delta), (N - 1) / max(N - t - 1, 1)
 
     return ucb_order(mu, S, truth, k, coef)
 
@@ -91,7 +100,10 @@ def rand_order(m, k, seed):
     return list(np.random.default_rng(seed).permutation(m)[:k])
 
 
-def doo_order(truth, features, k, seed, lam=1.0):
+def doo_order(truth, features, k, seed, lam=1.0, unit=1.0):
+    """DOO; scores are divided by ``unit`` first (box_core: the largest |score| of the
+    matrix it was given), so ``lam`` is in that unit."""
+    truth = np.asarray(truth) / unit
     m = truth.size
     tried, idx = np.zeros(m, dtype=bool), []
     dist = np.linalg.norm(features[None, :, :] - features[:, None, :], axis=2)
@@ -126,9 +138,58 @@ def loocv_orders(D, name, k, seed=0, features=None, **params):
         elif name == "rand":
             out.append(rand_order(m, k, (seed, i)))
         elif name == "doo":
-            out.append(doo_order(truth, features, k, (seed, i), **params))
+            out.append(doo_order(truth, features, k, (seed, i), unit=np.abs(D).max(), **params))
         elif name == "oracle":
             out.append(oracle_order(truth, k))
         else:
             raise ValueError(name)
     return np.array(out)
+
+
+def eips_order(train, feasible, times, truth, k, prior_rows=1.0, mismatch=0.1):
+    """EIPS recomputed from scratch at every step: row weights from the whole history,
+    the frequency p, the outcome-split column mean times, and eq. 2 by direct solves for
+    the expected improvement."""
+    mu, S = fit(train)
+    oks, fails = train[feasible], train[~feasible]
+    if not oks.size or not fails.size:  # everything fails / nothing fails
+        threshold = math.inf if not oks.size else -math.inf
+    else:
+        threshold = 0.5 * (fails.max() + oks.min())
+    n, m = train.shape
+    tried = np.zeros(m, dtype=bool)
+    idx, obs = [], []
+    pbar = feasible.mean(axis=0)
+    t_ok, t_fail = np.empty(m), np.empty(m)
+    for j in range(m):
+        ok, fail = times[feasible[:, j], j], times[~feasible[:, j], j]
+        t_ok[j] = ok.mean() if ok.size else times[:, j].mean()
+        t_fail[j] = fail.mean() if fail.size else times[:, j].mean()
+    for _ in range(k):
+        w = np.ones(n)
+        for j, y in zip(idx, obs, strict=True):
+            w[feasible[:, j] != (y > threshold)] *= mismatch
+        p = (w @ feasible + prior_rows * pbar) / (w.sum() + prior_rows)
+        tau = p * t_ok + (1 - p) * t_fail
+        found = [y for y in obs if y > threshold]
+        if found:
+            mean, var = posterior(mu, S, idx, obs)
+            s = np.sqrt(np.maximum(var, 0.0))
+            best = max(found)
+            gain = np.empty(m)
+            for j in range(m):
+                z = (mean[j] - best) / s[j] if s[j] > 0 else math.inf
+                if z <= -30:  # box_core's documented cut-off
+                    gain[j] = 0.0
+                elif z < 30:
+                    gain[j] = s[j] * (z * 0.5 * math.erfc(-z / math.sqrt(2))
+                                      + math.exp(-z * z / 2) / math.sqrt(2 * math.pi))
+                else:
+                    gain[j] = max(mean[j] - best, 0.0)
+        else:
+            gain = p
+        j = pick(gain / np.maximum(tau, 1e-12), tried, 0.0)
+        tried[j] = True
+        idx.append(j)
+        obs.append(truth[j])
+    return idx

@@ -8,10 +8,12 @@ from scipy.spatial import Delaunay
 
 from pipeline import configs
 from pipeline.domains import load_domain
-from pipeline.planning.rrt import PlannerSettings, _check_order, interpolate, path_is_free
+from pipeline.planning import PlannerSettings
+from pipeline.planning.base import check_order, interpolate, path_is_free
 from pipeline.sim import fast_check as FC
 from pipeline.sim import panda as P
 from pipeline.sim import spheres as S
+from pipeline.sim.mobile import MobileArm, MobileBase
 from pipeline.sim.world import add_box, connect
 
 
@@ -39,7 +41,7 @@ def _edges(rng, lower, upper, count, resolution):
         a, b = rng.uniform(lower, upper), rng.uniform(lower, upper)
         b = a + (b - a) * rng.uniform(0.05, 1.0)
         states = interpolate(a, b, resolution)
-        yield states[_check_order(len(states))]
+        yield states[check_order(len(states))]
 
 
 # -- geometry --------------------------------------------------------------------------------
@@ -112,11 +114,11 @@ def test_arm_checker_answers_and_counts_as_the_exact_one(grasp_arm):
     scene = domain.scene(domain.check_instance(domain.sample_instance(4)))
     arm = scene.arms[0]
     try:
-        checker = FC.certified(arm.check)
-        assert isinstance(checker, FC.SphereChecker) and checker.certified
-        _same_answers(checker, arm.check,
+        model = FC.certified(arm)
+        assert isinstance(model, FC.CertifiedRobot) and model.checker.certified
+        _same_answers(model.check, arm.check,
                       _edges(np.random.default_rng(5), P.LOWER, P.UPPER, 40, 0.01))
-        assert checker.stats["exact"] < checker.stats["rows"] / 5
+        assert model.checker.stats["exact"] < model.checker.stats["rows"] / 5
     finally:
         arm.set(P.HOME)
 
@@ -130,31 +132,31 @@ def carrying():
     for g in domain.grasps:
         carry, _ = domain.carry(inst, g)
         if carry is not None:
-            domain._hold(inst, g, carry)
-            return domain, domain._scene.robot
+            domain.hold(inst, g, carry)
+            return domain, domain.robot
     pytest.fail("no carry configuration")
 
 
 def test_arm_checker_with_a_held_rod_answers_as_the_exact_one(carrying):
     domain, robot = carrying
-    checker = FC.certified(robot.arm_check)
-    assert isinstance(checker, FC.SphereChecker) and checker.certified
+    model = FC.certified(MobileArm(robot))
+    assert isinstance(model, FC.CertifiedRobot) and model.checker.certified
     rng = np.random.default_rng(6)
     q0 = FC.arm_state(robot.client, robot.body)
     lo, hi = np.maximum(P.LOWER, q0 - 1.0), np.minimum(P.UPPER, q0 + 1.0)
-    _same_answers(checker, robot.arm_check, _edges(rng, lo, hi, 25, 0.01))
+    _same_answers(model.check, robot.arm_check, _edges(rng, lo, hi, 25, 0.01))
     robot.set_arm(q0)
 
 
 def test_base_checker_with_a_held_rod_answers_as_the_exact_one(carrying):
     domain, robot = carrying
     s = domain.config.psi_scale
-    exact = robot.base_checker(s)
-    checker = FC.certified(exact)
-    assert isinstance(checker, FC.SphereChecker) and checker.certified
     lo, hi = np.array([-2.9, -1.5, -np.pi * s]), np.array([2.9, 1.5, np.pi * s])
-    _same_answers(checker, exact, _edges(np.random.default_rng(7), lo, hi, 40, 0.04))
-    assert checker.stats["exact"] < checker.stats["rows"] / 5
+    exact = MobileBase(robot, s, lo, hi)
+    model = FC.certified(exact)
+    assert isinstance(model, FC.CertifiedRobot) and model.checker.certified
+    _same_answers(model.check, exact.check, _edges(np.random.default_rng(7), lo, hi, 40, 0.04))
+    assert model.checker.stats["exact"] < model.checker.stats["rows"] / 5
 
 
 def test_a_scene_it_cannot_model_is_checked_exactly(lone_arm):
@@ -163,19 +165,23 @@ def test_a_scene_it_cannot_model_is_checked_exactly(lone_arm):
                                                            physicsClientId=client),
                                 basePosition=[0.6, -0.2, 0.6], physicsClientId=client)
     try:
-        checker = FC.certified(arm.check)
-        assert not checker.certified
-        _same_answers(checker, arm.check,
+        model = FC.certified(arm)
+        assert not model.checker.certified
+        _same_answers(model.check, arm.check,
                       _edges(np.random.default_rng(8), P.LOWER, P.UPPER, 10, 0.05))
     finally:
         pb.removeBody(sphere, physicsClientId=client)
 
 
-def test_unknown_checkers_are_left_alone():
-    def check(states):
-        return True, len(states)
+def test_unknown_robots_are_left_alone():
+    class Disc:
+        lower, upper = np.zeros(2), np.ones(2)
 
-    assert FC.certified(check) is check
+        def check(self, states):
+            return True, len(states)
+
+    disc = Disc()
+    assert FC.certified(disc) is disc
 
 
 # -- planning with it ------------------------------------------------------------------------
@@ -248,10 +254,10 @@ def test_boxes_touching_the_platform_make_a_mobile_checker_exact():
 
     scene = MobileScene([])
     try:
-        robot = scene.robot
-        assert FC.certified(robot.arm_check).certified
+        arm = MobileArm(scene.robot)
+        assert FC.certified(arm).checker.certified
         add_box(scene.client_id, (0.2, 0.2, 0.2), (0.3, 0.0, 0.1))  # into the platform
-        assert not FC.certified(robot.arm_check).certified
+        assert not FC.certified(arm).checker.certified
     finally:
         scene.close()
 

@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 
 from pipeline.domains import InstanceError, load_domain
-from pipeline.domains.grasp_arm import grasp_set
-from pipeline.planning import Status
-from pipeline.planning.rrt import path_is_free
+from pipeline.domains.grasps import grasp_set
+from pipeline.planning import Status, path_is_free
 
 TARGET = {"size": [0.04, 0.04, 0.12], "position": [0.42, 0.3, 0.061], "yaw": 0.0}
 OPEN = {"domain": "grasp_arm", "seed": 0, "target": TARGET, "obstacles": []}

@@ -10,8 +10,7 @@ import pytest
 from pipeline.domains import InstanceError, load_domain
 from pipeline.domains.grasp_base import BaseGrasp
 from pipeline.domains.pick_place import GOAL_TABLE, PickPlaceDomain, rod_grasps
-from pipeline.planning import Status
-from pipeline.planning.rrt import path_is_free
+from pipeline.planning import Status, path_is_free
 from pipeline.sim import panda as P
 
 TARGET = {"size": [0.04, 0.04, 0.12], "position": [0.8, 0.0, 0.461], "yaw": 0.0}
@@ -75,7 +74,7 @@ def test_grasp_base_an_enclosed_target_is_infeasible_and_the_failing_step_is_nam
 
 
 def test_grasp_base_paths_recheck_free_and_end_at_the_pregrasp(grasp_base):
-    from pipeline.domains.grasp_arm import pregrasp_pose
+    from pipeline.domains.grasps import pregrasp_pose
 
     checked = 0
     for seed in range(4):
@@ -129,7 +128,7 @@ def test_grasp_base_refuses_bad_constraints_and_specs(grasp_base):
 
 
 def test_grasp_base_instances_have_the_configured_obstacles_without_overlaps():
-    from pipeline.domains.mobile_world import rectangle, rectangles_overlap
+    from pipeline.domains.geometry import rectangle, rectangles_overlap
 
     domain = load_domain("grasp_base", obstacles=7)
     spec = domain.sample_instance(3)

@@ -162,8 +162,8 @@ def test_corrupted_chunk_is_reported_and_recomputed(reference, tmp_path):
     data[len(data) // 2] ^= 0xFF
     chunk.write_bytes(bytes(data))
     status = pr.run(copy, "stage=status")
-    assert status.returncode == 0, status.stderr
-    assert "corrupted chunks found" in status.stdout
+    assert status.returncode == 1, status.stderr  # damage: non-zero, like box status
+    assert "corrupted chunks found" in status.stdout and "scores/feasible" in status.stderr
     res = pr.run(copy, "stage=scores", "store.mode=resume")
     # the stage was finished: a resume must still notice damage
     assert res.returncode == 0, res.stderr

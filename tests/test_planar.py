@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from pipeline.domains import InstanceError, load_domain
-from pipeline.planning import Status
-from pipeline.planning.rrt import path_is_free
+from pipeline.planning import Status, path_is_free
 
 EMPTY = {"domain": "planar", "seed": 0, "obstacles": []}
 # a closed ring of walls around (5, 5): a via-point inside can be reached from nowhere
@@ -134,7 +133,7 @@ def test_a_planner_failure_becomes_a_status(domain, monkeypatch):
     def boom(*a, **k):
         raise RuntimeError("simulated OMPL failure")
 
-    monkeypatch.setattr(domain.rrt, "plan", boom)
+    monkeypatch.setattr(domain.motion, "plan", boom)
     res = domain.plan(EMPTY, [5.0, 8.0])
     assert res.status is Status.ERROR and "simulated OMPL failure" in res.error
 

@@ -31,6 +31,39 @@ def matrix(store):
     return g, scores, feasible, g["scores/time"][...]
 
 
+def own_columns(g):
+    """(n, m): column j was extracted from row i's raw solution (planar: every column)."""
+    source = g["constraints/source_instance"][...]
+    return source[None, :] == np.arange(g["scores/feasible"].shape[0])[:, None]
+
+
+def test_evaluate_hides_each_instance_s_own_constraints_unless_told_not_to(made, tmp_path):
+    store, _ = made
+    g = zarr.open_group(store, mode="r", use_consolidated=False)
+    own = own_columns(g)
+    assert own.any(axis=1).sum() >= 10  # planar constraints come from raw solutions
+    m = own.shape[1]
+    for name in ("box", "eips", "fastest", "rand"):
+        order = g[f"evaluation/{name}/order"][...]
+        assert order.shape[1] == m - 1
+        tried = np.zeros(own.shape, bool)
+        np.put_along_axis(tried, order, True, axis=1)
+        assert not (tried & own).any(), name
+    assert g.attrs["stages"]["evaluate"]["leakage"]["hidden"] is True
+    copy = tmp_path / "leaky.zarr"
+    shutil.copytree(store, copy)
+    res = pr.run(copy, "stage=evaluate", "evaluate.exclude_own_constraints=false")
+    assert res.returncode == 0, res.stderr
+    g = zarr.open_group(copy, mode="r", use_consolidated=False)
+    assert g["evaluation/box/order"].shape[1] == m
+    assert g.attrs["stages"]["evaluate"]["leakage"] == {
+        "own_constraint_rows": int(own.any(axis=1).sum()), "hidden": False}
+    res = pr.run(copy, "stage=report", "report.renders=0", "report.repeats=1",
+                 f"report.dir={tmp_path / 'r'}")
+    assert res.returncode == 0, res.stderr
+    assert "Leave-one-out WITH leakage" in (tmp_path / "r" / "report.md").read_text()
+
+
 def test_report_writes_every_figure_and_a_self_contained_page(made):
     _, report = made
     for stem in ("fig3_first_feasible", "fig4_score_vs_time", "fig_learning_curve",
@@ -56,9 +89,13 @@ def test_report_tables_hold_the_store_s_numbers(made):
     assert dataset[1][6] == f"{int(feasible.any(axis=1).sum())}/24"
 
     rows = {r[0]: r for r in md_table(md, "## Time to first feasible plan")[1:]}
-    assert set(rows) == {"BOX", "STATIC", "RAND", "DOO", "PEM-BO", "ORACLE", "RAWPLANNER"}
+    assert set(rows) == {"BOX", "EIPS", "STATIC", "RAND", "DOO", "PEM-BO", "ORACLE", "FASTEST",
+                         "RAWPLANNER"}
+    assert float(rows["FASTEST"][2]) <= min(float(r[2]) for r in rows.values())
+    assert "Leave-one-out without leakage" in md
     direct = box_core.loocv(scores, feasible=feasible, times=times, selectors=("box", "static"),
-                            features=g["constraints/theta"][...], measure_overhead=False)
+                            features=g["constraints/theta"][...], measure_overhead=False,
+                            forbidden=own_columns(g))
     for name in ("box", "static"):
         line = direct.summary().line(name)
         row = rows[name.upper()]
@@ -72,15 +109,16 @@ def test_report_tables_hold_the_store_s_numbers(made):
 def test_report_learning_curve_and_c_tables_are_recomputable(made):
     store, report = made
     md = (report / "report.md").read_text()
-    _, scores, feasible, times = matrix(store)
+    g, scores, feasible, times = matrix(store)
+    own = own_columns(g)
     curve = box_core.learning_curve(scores, times=times, feasible=feasible,
-                                    selectors=("box", "static"), seed=0)
+                                    selectors=("box", "eips", "static"), seed=0, forbidden=own)
     table = md_table(md, "## Learning curve")[1:]
-    assert len(table) == len(curve) == 8
+    assert len(table) == len(curve) == 12
     for row, point in zip(table, curve, strict=True):
         assert row[0] == point.selector.upper() and int(row[2]) == point.n_train
         assert float(row[3]) == pytest.approx(point.mean, rel=1e-3)
-    tuning = box_core.tune_c(scores, times=times, feasible=feasible, seed=0)
+    tuning = box_core.tune_c(scores, times=times, feasible=feasible, seed=0, forbidden=own)
     sens = md_table(md, "## Sensitivity to C")[1:]
     assert [float(r[0]) for r in sens] == list(tuning.grid)
     for row, c in zip(sens, tuning.grid, strict=True):
@@ -135,7 +173,8 @@ def test_solve_runs_fresh_instances_live_and_saves_the_best_plans(made, tmp_path
     stored = zarr.open_array(store / "instances" / "seed", mode="r")[...]
     assert len(seeds) == 4 and not set(seeds) & set(stored.tolist())
     assert doc["training_rows"] == 24
-    for name, row in zip(("BOX", "STATIC", "RAWPLANNER"), doc["table"]["rows"], strict=True):
+    for name, row in zip(("BOX", "EIPS", "STATIC", "RAWPLANNER"), doc["table"]["rows"],
+                         strict=True):
         key = name.lower()
         solved = sum(r["selectors"][key]["first_feasible_time"] is not None
                      for r in doc["records"])
@@ -155,7 +194,7 @@ def test_solve_runs_fresh_instances_live_and_saves_the_best_plans(made, tmp_path
     doc2 = json.loads((tmp_path / "s2" / "solve.json").read_text())
     for a, b in zip(doc["records"], doc2["records"], strict=True):
         assert a["seed"] == b["seed"]
-        for name in ("box", "static"):
+        for name in ("box", "eips", "static"):
             assert [t["constraint"] for t in a["selectors"][name]["tries"]] == \
                    [t["constraint"] for t in b["selectors"][name]["tries"]]
 
@@ -185,6 +224,7 @@ def test_solve_refuses_an_incomplete_store_unless_asked(made, tmp_path):
 
 @pytest.mark.parametrize("extra, message", [
     (("solve.selectors=[oracle]",), "oracle"),
+    (("solve.selectors=[fastest]",), "fastest"),
     (("solve.selectors=[nope]",), "unknown selector"),
     (("solve.n=0",), "solve.n"),
 ])

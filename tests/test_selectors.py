@@ -35,11 +35,24 @@ def test_pembo_order_equals_direct_implementation(m, seed):
     assert run(make_selector("pembo", train), truth, m) == reference.pembo_order(train, truth, m)
 
 
-def test_pembo_coefficient_grows_with_t_and_exceeds_its_limit():
-    L = np.log(4 / 0.01)
-    z = [pembo_zeta(t, 1000, 0.01) for t in (1, 10, 100)]
-    assert z[0] < z[1] < z[2]
-    assert z[0] > np.sqrt(2 * L)
+def test_pembo_zeta_is_the_published_schedule_where_defined():
+    # zeta_t of Wang, Kim and Kaelbling's code, written out for N = 1000, t = 5, delta = 0.01
+    N, t, delta = 1000, 5, 0.01
+    L6 = np.log(6 / delta)
+    iota = np.sqrt(6 * (N - 2 + t + 2 * np.sqrt(t * L6) + 2 * L6) / (delta * N * (N - t - 2)))
+    b = L6 / (N - t - 1)
+    expected = (iota + np.sqrt(2 * np.log(3 / delta))) / np.sqrt(1 - 2 * np.sqrt(b))
+    assert pembo_zeta(t, N, delta) == pytest.approx(expected, rel=1e-12)
+    assert pembo_zeta(0, N) == pytest.approx(reference.pembo_zeta(0, N), rel=1e-12)
+
+
+@pytest.mark.parametrize("N", [2, 3, 10, 27, 28, 40, 1000])
+def test_pembo_zeta_is_finite_continuous_and_non_decreasing_past_its_domain(N):
+    z = [pembo_zeta(t, N) for t in range(N + 50)]
+    assert np.isfinite(z).all()
+    assert (np.diff(z) >= -1e-12).all()
+    # continuation: the boundary value is reached, never exceeded by a jump
+    assert z == pytest.approx([reference.pembo_zeta(t, N) for t in range(N + 50)], rel=1e-12)
 
 
 degenerate_cases = st.builds(
@@ -55,7 +68,9 @@ def test_every_selector_gives_valid_non_repeating_proposals_on_degenerate_matric
     train, truth = D[:-1], D[-1]
     m = D.shape[1]
     features = np.random.default_rng(0).normal(size=(m, 3))
-    sel = make_selector(name, train, features=features, true_scores=truth, seed=1)
+    times = np.random.default_rng(1).uniform(0.1, 2.0, size=D.shape)
+    sel = make_selector(name, train, features=features, true_scores=truth, seed=1,
+                        times=times[:-1], true_times=times[-1])
     order = run(sel, truth, m)
     assert sorted(order) == list(range(m))
     with pytest.raises(RuntimeError, match="all"):
@@ -105,7 +120,8 @@ def test_doo_matches_its_lipschitz_bound_definition():
     D = well_conditioned(20, 15, seed=6)
     feats = np.random.default_rng(2).normal(size=(15, 3))
     got = run(make_selector("doo", D[1:], features=feats, seed=(0, 0), lam=0.5), D[0], 15)
-    assert got == reference.doo_order(D[0], feats, 15, (0, 0), lam=0.5)
+    assert got == reference.doo_order(D[0], feats, 15, (0, 0), lam=0.5,
+                                      unit=np.abs(D[1:]).max())
 
 
 def test_update_accepts_constraints_other_than_the_proposal():
@@ -134,7 +150,8 @@ def test_bad_selector_arguments_are_named(call, message):
 
 
 @pytest.mark.parametrize("index, score, message", [
-    (9, -1.0, "out of range"), (-1, -1.0, "out of range"), (0, float("nan"), "finite"),
+    (9, -1.0, "index 9 out of range"), (-1, -1.0, "index -1 out of range"),
+    (0, float("nan"), "score must be finite"), (0, "x", "score must be a finite number"),
 ])
 def test_bad_updates_are_refused(index, score, message):
     sel = make_selector("box", well_conditioned(10, 4, seed=0))
@@ -145,5 +162,74 @@ def test_bad_updates_are_refused(index, score, message):
 def test_a_constraint_cannot_be_reported_twice():
     sel = make_selector("box", well_conditioned(10, 4, seed=0))
     sel.update(2, -1.0)
-    with pytest.raises(ValueError, match="already tried"):
+    with pytest.raises(ValueError, match="index 2: that constraint was already tried"):
         sel.update(2, -1.0)
+
+
+def feasibility_matrix(n, m, seed):
+    """Scores with failures at -10, feasibility correlated across columns, and times that
+    differ by column and by outcome (failures cheap, like the planners here)."""
+    D = degenerate(n, m, seed, constant=1, duplicate=0, rank=3)
+    rng = np.random.default_rng(seed)
+    F = D > -10
+    T = np.where(F, rng.uniform(0.5, 3.0, size=(n, m)), rng.uniform(0.01, 0.3, size=(n, m)))
+    return D, F, T * rng.uniform(0.5, 2.0, size=m)
+
+
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(6, 40), m=st.integers(2, 25), seed=st.integers(0, 10_000),
+       mismatch=st.sampled_from([0.0, 0.1, 0.5]), prior_rows=st.sampled_from([0.5, 1.0, 4.0]))
+def test_eips_order_equals_its_direct_implementation(n, m, seed, mismatch, prior_rows):
+    D, F, T = feasibility_matrix(n, m, seed)
+    train, truth = D[:-1], D[-1]
+    sel = make_selector("eips", train, times=T[:-1], feasible=F[:-1], mismatch=mismatch,
+                        prior_rows=prior_rows)
+    expected = reference.eips_order(train, F[:-1], T[:-1], truth, m, prior_rows=prior_rows,
+                                    mismatch=mismatch)
+    assert run(sel, truth, m) == expected
+
+
+def test_eips_tries_the_cheaper_of_two_equally_likely_constraints_first():
+    # both columns always feasible with the same scores; column 0 takes 10 s, column 1 1 s
+    D = np.column_stack([np.linspace(-2, -1, 20)] * 2)
+    T = np.column_stack([np.full(20, 10.0), np.full(20, 1.0)])
+    assert make_selector("box", D).propose() == 0
+    assert make_selector("eips", D, times=T, feasible=np.ones_like(D, bool)).propose() == 1
+
+
+def test_eips_learns_from_a_failure_which_constraint_will_work():
+    # instances of two kinds: 60 % feasible only at column 0, 40 % only at column 1;
+    # column 2 is never feasible.  After column 0 fails, column 1 is certain.
+    kind_a = np.tile([-1.0, -10.0, -10.0], (12, 1))
+    kind_b = np.tile([-10.0, -1.0, -10.0], (8, 1))
+    D = np.vstack([kind_a, kind_b])
+    sel = make_selector("eips", D, feasible=D > -10)
+    assert sel.propose() == 0
+    sel.update(0, -10.0)
+    assert sel.propose() == 1
+
+
+def test_fastest_tries_the_quickest_feasible_constraint_first():
+    D, F, T = feasibility_matrix(30, 12, seed=3)
+    truth, times = D[-1], T[-1]
+    sel = make_selector("fastest", D[:-1], feasible=F[:-1], true_scores=truth,
+                        true_times=times)
+    order = run(sel, truth, 12)
+    ok = np.flatnonzero(F[-1])
+    assert order[:ok.size] == sorted(ok, key=lambda j: (times[j], j))
+    with pytest.raises(ValueError, match="needs true_times"):
+        make_selector("fastest", D[:-1], true_scores=truth)
+
+
+@pytest.mark.parametrize("index", [2.7, 2.0, "1", None, True, np.float64(1.0)])
+def test_a_non_integer_index_is_refused_naming_the_argument(index):
+    sel = make_selector("box", well_conditioned(10, 4, seed=0))
+    with pytest.raises(ValueError, match="^index must be an integer"):
+        sel.update(index, -1.0)
+    assert not sel.tried.any() and sel.history == []
+
+
+def test_numpy_integer_indices_are_accepted():
+    sel = make_selector("box", well_conditioned(10, 4, seed=0))
+    sel.update(np.int64(3), -1.0)
+    assert sel.history == [(3, -1.0)]

@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 
 from pipeline.domains import load_domain
-from pipeline.planning import Status, interpolate
-from pipeline.planning.rrt import PlannerSettings, path_is_free
-from pipeline.planning.trajopt import TrajOptOptions, optimise, trajopt_plan
+from pipeline.planning import PlannerSettings, Status, interpolate, path_is_free
+from pipeline.planning.trajopt import TrajOpt, TrajOptOptions, optimise
 from pipeline.sim import panda as P
 
 START, GOAL = np.array([0.0, 0.0]), np.array([1.0, 0.0])
@@ -99,18 +98,18 @@ def test_the_panda_goes_round_a_box_on_its_straight_path(blocked_swing):
     arm = blocked_swing
     assert not arm.collides_at(P.HOME) and not arm.collides_at(SWING)
     assert not path_is_free(np.array([P.HOME, SWING]), arm.check, 0.01)
-    res = trajopt_plan(arm, P.HOME, SWING, PlannerSettings(name="trajopt"))
+    res = TrajOpt(PlannerSettings(name="trajopt")).plan(arm, P.HOME, SWING)
     assert res.status is Status.OK and res.path.shape == (20, 7)
     assert path_is_free(res.path, arm.check, 0.01)
     assert res.length > np.linalg.norm(SWING - P.HOME)
-    again = trajopt_plan(arm, P.HOME, SWING, PlannerSettings(name="trajopt"))
+    again = TrajOpt(PlannerSettings(name="trajopt")).plan(arm, P.HOME, SWING)
     assert again.path.tobytes() == res.path.tobytes()
 
 
 def test_a_blocked_goal_is_infeasible(blocked_swing):
     arm = blocked_swing
     inside = P.HOME + 0.5 * (SWING - P.HOME)  # the hand inside the box
-    res = trajopt_plan(arm, P.HOME, inside, PlannerSettings(name="trajopt"))
+    res = TrajOpt(PlannerSettings(name="trajopt")).plan(arm, P.HOME, inside)
     assert not res.feasible and res.status in (Status.NOT_CONVERGED, Status.PATH_IN_COLLISION)
 
 
@@ -141,3 +140,10 @@ def test_domain_results_are_bitwise_identical_in_another_process(domain):
 def test_planar_refuses_trajopt():
     with pytest.raises(ValueError, match="trajopt"):
         load_domain("planar", planner="trajopt")
+
+
+def test_bad_trajopt_settings_are_refused_naming_the_key():
+    with pytest.raises(ValueError, match="trajopt_waypoints"):
+        load_domain("grasp_arm", planner={"name": "trajopt", "trajopt_waypoints": 2})
+    with pytest.raises(ValueError, match="trajopt_"):
+        load_domain("grasp_base", planner={"name": "trajopt", "trajopt_margin": -1.0})

@@ -1,10 +1,10 @@
-"""Planning domains: one module (a Domain subclass and its config dataclass) and one YAML
-file under ``conf/domain/`` each.  ``load_domain`` is how Python code gets one; Hydra
-composes the same YAML files for the pipeline, so both see the same parameters.
+"""Planning domains: one module (a Domain subclass), one schema in
+:mod:`pipeline.domains.schemas` and one YAML file under ``conf/domain/`` each.
+``load_domain`` is how Python code gets one; Hydra composes the same YAML files for the
+pipeline, so both see the same parameters.  Adding a domain: docs/architecture.md (the
+smallest complete example is :mod:`pipeline.domains.planar`).
 
-Adding a domain: write ``pipeline/domains/<name>.py`` with a ``Domain`` subclass (see
-:mod:`pipeline.domains.planar`, the smallest complete example), add it to ``DOMAINS``
-below and add ``conf/domain/<name>.yaml``.
+Importing this package loads no domain module, hence no simulator and no planner.
 """
 
 from __future__ import annotations
@@ -12,6 +12,8 @@ from __future__ import annotations
 import importlib
 
 from pipeline.domains.base import ConstraintSet, Domain, InstanceError, RawResult
+from pipeline.domains.schemas import DOMAIN_SCHEMAS
+from pipeline.yaml_configs import load_yaml_config, planner_settings
 
 #: name -> "module:class"; imported on first use so that unused simulators stay unloaded.
 DOMAINS = {
@@ -35,11 +37,9 @@ def load_domain(name: str, planner=None, **overrides) -> Domain:
     ``planner`` is a planner name (``conf/planner/<name>.yaml``), a mapping of planner
     settings, or a :class:`pipeline.planning.PlannerSettings`; default ``rrt_connect``.
     """
-    from pipeline import configs
-
     cls = domain_class(name)
-    config = configs.load_yaml_config("domain", name, cls.config_class, overrides)
-    return cls(config, configs.planner_settings(planner))
+    config = load_yaml_config("domain", name, DOMAIN_SCHEMAS[name], overrides)
+    return cls(config, planner_settings(planner))
 
 
 __all__ = ["DOMAINS", "ConstraintSet", "Domain", "InstanceError", "RawResult", "domain_class",

@@ -1,9 +1,10 @@
-"""The domain API every planning domain implements (names are a contract)."""
+"""The domain API every planning domain implements (names are a contract; see
+docs/architecture.md)."""
 
 from __future__ import annotations
 
 import abc
-import math
+import dataclasses
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,11 +12,12 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from pipeline.domains.specs import InstanceError, finite_rows, require
 from pipeline.planning import PlannerSettings, PlanResult, Status
+from pipeline.planning.registry import make_planner, plans_nothing
 
-
-class InstanceError(ValueError):
-    """An instance spec with a missing or malformed field."""
+__all__ = ["ConstraintSet", "Domain", "InstanceError", "RawResult", "RawSearch",
+           "constraint_row", "finite_rows", "require"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -45,12 +47,24 @@ class RawResult:
     time: float
 
 
+@dataclass(eq=False)
+class RawSearch:
+    """What a domain's RAWPLANNER search found: the last plan, the feature row of the
+    constraint it used (None when it failed), constraints tried, checks in all."""
+
+    plan: PlanResult
+    constraint: np.ndarray | None
+    tries: int
+    checks: int
+
+
 class Domain(abc.ABC):
     """A family of planning problems ω and their solution constraints θ.
 
     Subclasses set ``name``, ``config_class`` (a dataclass, the schema of
     ``conf/domain/<name>.yaml``), ``fixed_constraints`` (True when Θ is a fixed set,
-    False when it is extracted from RAWPLANNER's solutions) and ``steps``.
+    False when it is extracted from RAWPLANNER's solutions) and ``steps``, and get their
+    planners from :meth:`planner_for` (never by the planner's name).
     """
 
     name: ClassVar[str]
@@ -63,6 +77,15 @@ class Domain(abc.ABC):
     def __init__(self, config, planner: PlannerSettings):
         self.config = config
         self.planner = planner
+        #: the planner plans nothing: every π call is "skipped" (RAWPLANNER still plans)
+        self.skips_plans = plans_nothing(planner)
+
+    def planner_for(self, robot, **settings):
+        """The configured planner for ``robot`` (a robot model class), with ``settings``
+        overriding the planner's; refused with one message if the robot lacks what the
+        planner needs."""
+        chosen = dataclasses.replace(self.planner, **settings) if settings else self.planner
+        return make_planner(chosen, robot)
 
     @property
     def n_features(self) -> int:
@@ -100,53 +123,61 @@ class Domain(abc.ABC):
         t0 = time.perf_counter()
         inst = self.check_instance(instance)
         theta = self.constraint(constraint)
-        try:
-            result = self._plan(inst, theta, int(seed))
-        except Exception as exc:  # noqa: BLE001 (an outcome, not a crash)
-            result = PlanResult(Status.ERROR, error=repr(exc))
+        if self.skips_plans:
+            result = PlanResult(Status.SKIPPED)
+        else:
+            result = self.attempt(inst, theta, int(seed))
         result.time = time.perf_counter() - t0
         return result
+
+    def attempt(self, inst, theta, seed: int) -> PlanResult:
+        """π on a checked instance and constraint, a raised failure turned into ``error``
+        (RAWPLANNER's searches call this)."""
+        try:
+            return self._plan(inst, theta, seed)
+        except Exception as exc:  # noqa: BLE001 (an outcome, not a crash)
+            return PlanResult(Status.ERROR, error=repr(exc))
 
     @abc.abstractmethod
     def _plan(self, instance, constraint, seed: int) -> PlanResult:
         """The planning call proper, on a checked instance and constraint."""
 
-    @abc.abstractmethod
     def raw_plan(self, instance, seed: int = 0) -> RawResult:
-        """RAWPLANNER: the unguided planner."""
+        """RAWPLANNER: the unguided planner (the domain's :meth:`_raw_search`), its time
+        and checks in all, and the constraint it used as a feature row (NaN if none)."""
+        t0 = time.perf_counter()
+        inst = self.check_instance(instance)
+        found = self._raw_search(inst, int(seed))
+        plan = found.plan
+        plan.checks, plan.time = found.checks, time.perf_counter() - t0
+        row = (np.full(self.n_features, np.nan) if found.constraint is None
+               else np.asarray(found.constraint, float))
+        return RawResult(plan=plan, constraint=row, tries=found.tries, time=plan.time)
+
+    @abc.abstractmethod
+    def _raw_search(self, instance, seed: int) -> RawSearch:
+        """RAWPLANNER's search on a checked instance."""
 
     @abc.abstractmethod
     def build_scene(self, instance):
-        """A scene with ``client_id``, ``robot_ids`` and ``set_configuration(q)``."""
+        """A scene with ``client_id``, ``robot_ids`` and ``set_configuration(q)``; the
+        caller closes it (``close()``) when it has one."""
 
     @abc.abstractmethod
     def render(self, instance, plan: PlanResult | None = None, path: str | Path = "scene.png",
                constraint=None) -> Path:
         """Write a PNG of the instance (and the plan, when given); return its path."""
 
-
-def require(instance: dict, key: str, kind: type | tuple[type, ...]):
-    """``instance[key]``, checked to be of ``kind``; InstanceError naming the key if not."""
-    if not isinstance(instance, dict):
-        raise InstanceError(f"instance spec must be a JSON object, got {type(instance).__name__}")
-    if key not in instance:
-        raise InstanceError(f"instance spec: missing field {key!r}")
-    value = instance[key]
-    if isinstance(value, bool) or not isinstance(value, kind):  # no field is boolean
-        raise InstanceError(f"instance spec: field {key!r} has the wrong type "
-                            f"({type(value).__name__})")
-    return value
+    def close(self) -> None:
+        """Release simulator clients this domain holds (its cached scene); it may be used
+        again afterwards (a new client is made then)."""
+        return None
 
 
-def finite_rows(value, key: str, width: int) -> np.ndarray:
-    """A list of ``width``-number lists, all finite, as an (k, width) array."""
+def constraint_row(constraint, domain: str) -> np.ndarray:
+    """``constraint`` as a float array; ValueError naming the constraint if it is not
+    numbers (the domain then checks its shape and values)."""
     try:
-        arr = np.asarray(value, dtype=float).reshape(-1, width) if len(value) else \
-            np.empty((0, width))
+        return np.asarray(constraint, float)
     except (TypeError, ValueError):
-        raise InstanceError(f"instance spec: field {key!r} must be a list of "
-                            f"{width}-number lists") from None
-    if len(arr) != len(value) or not all(math.isfinite(x) for x in arr.ravel()):
-        raise InstanceError(f"instance spec: field {key!r} must be a list of finite "
-                            f"{width}-number lists")
-    return arr
+        raise ValueError(f"{domain} constraint {constraint!r} is not a row of numbers") from None

@@ -6,33 +6,28 @@ in front of the shelf, on the table under the shelf, or on the shelf board; 0-20
 obstacles stand on the same surfaces.  A constraint θ = (arm, grasp): 2 × 81 fixed
 constraints, the grasps generated from the object's geometry (9 approach directions ×
 3 wrist rotations × 3 depths), each with a pre-grasp 10 cm back along the approach.
-π(ω, θ): a collision-free IK solution for the pre-grasp, RRT-Connect from home, bounded
-shortcutting; score = -(joint-space path length).
+π(ω, θ): a collision-free IK solution for the pre-grasp, then the configured planner
+(RRT-Connect with bounded shortcutting, or TrajOpt) from home; score = -(joint-space path
+length).
 """
 
 from __future__ import annotations
 
-import functools
-import itertools
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pybullet as pb
 
-from pipeline.domains.base import (
-    ConstraintSet,
-    Domain,
-    InstanceError,
-    RawResult,
-    finite_rows,
-    require,
-)
-from pipeline.planning import PlanResult, RRTConnect, Status
-from pipeline.planning.trajopt import trajopt_plan
+from pipeline.domains.base import ConstraintSet, Domain, RawSearch, constraint_row
+from pipeline.domains.geometry import Box, sample_obstacles
+from pipeline.domains.grasps import Grasp, grasp_index, grasp_set, pregrasp_pose
+from pipeline.domains.ik import solve_ik
+from pipeline.domains.schemas import GraspArmConfig
+from pipeline.domains.specs import parse_box, parse_obstacles, require
+from pipeline.planning import PlanResult
 from pipeline.sim import panda as P
-from pipeline.sim.world import add_box, camera_image, connect, quaternion, rot_z, save_png
+from pipeline.sim.world import add_box, camera_image, connect, save_png
 
 #: name -> (x range, y range, surface height, free height above it)
 SURFACES = {
@@ -50,68 +45,6 @@ FURNITURE = (
     ((0.02, 1.14, 0.60), (0.80, 0.0, 0.30)),  # shelf back panel
 )
 ARM_BASES = ((0.0, 0.30, 0.0), (0.0, -0.30, 0.0))
-
-
-@dataclass
-class GraspArmConfig:
-    """Schema of ``conf/domain/grasp_arm.yaml``."""
-
-    name: str = "grasp_arm"
-    obstacles_min: int = 0
-    obstacles_max: int = 20
-    obstacle_size: list[float] = field(default_factory=lambda: [0.03, 0.08])  # edge, metres
-    obstacle_height: list[float] = field(default_factory=lambda: [0.05, 0.20])
-    target_size: list[float] = field(default_factory=lambda: [0.04, 0.04, 0.12])
-    pregrasp_offset: float = 0.10
-    ik_restarts: int = 4
-
-
-@dataclass(frozen=True)
-class Grasp:
-    arm: int
-    approach: np.ndarray  # unit vector in the object frame: the direction the hand moves in
-    rotation: float  # about the approach axis, radians
-    depth: float  # TCP offset from the object centre along the approach, metres
-
-    @property
-    def features(self) -> np.ndarray:
-        return np.array([self.arm, *self.approach, self.rotation, self.depth])
-
-
-def grasp_set() -> list[Grasp]:
-    """The 162 constraints: 2 arms × (9 approaches × 3 rotations × 3 depths)."""
-    approaches = [np.array([0.0, 0.0, -1.0])] + [
-        np.array([-np.cos(a), -np.sin(a), 0.0]) for a in np.arange(8) * np.pi / 4]
-    return [Grasp(arm, np.round(d, 12), rot, depth)
-            for arm, d, rot, depth in itertools.product(
-                (0, 1), approaches, (0.0, np.pi / 4, np.pi / 2), (-0.02, 0.0, 0.02))]
-
-
-def hand_orientation(approach: np.ndarray, rotation: float) -> np.ndarray:
-    """Rotation matrix of the TCP frame: z along the approach, x turned by ``rotation``."""
-    z = approach / np.linalg.norm(approach)
-    ref = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x0 = ref - z * (ref @ z)
-    x0 /= np.linalg.norm(x0)
-    y0 = np.cross(z, x0)
-    x = np.cos(rotation) * x0 + np.sin(rotation) * y0
-    return np.column_stack([x, np.cross(z, x), z])
-
-
-def pregrasp_pose(target: Box, g: Grasp, offset: float) -> tuple[np.ndarray, np.ndarray]:
-    """World position and quaternion of the TCP at g's pre-grasp of the ``target`` box:
-    ``offset`` metres back along the approach from the grasp."""
-    R_obj = rot_z(target.yaw)
-    approach = R_obj @ g.approach
-    pre = np.asarray(target.position) + approach * (g.depth - offset)
-    return pre, quaternion(R_obj @ hand_orientation(g.approach, g.rotation))
-
-
-@dataclass(frozen=True)
-class Box:
-    size: tuple[float, float, float]
-    position: tuple[float, float, float]
-    yaw: float
 
 
 @dataclass(frozen=True)
@@ -158,35 +91,6 @@ class GraspArmScene:
         pb.disconnect(physicsClientId=self.client_id)
 
 
-def parse_box(value, key: str) -> Box:
-    if not isinstance(value, dict):
-        raise InstanceError(f"instance spec: {key} must be an object with size, position, yaw")
-    size = finite_rows([require(value, "size", list)], f"{key}.size", 3)[0]
-    pos = finite_rows([require(value, "position", list)], f"{key}.position", 3)[0]
-    yaw = require(value, "yaw", (int, float))
-    if np.any(size <= 0) or not np.isfinite(yaw):
-        raise InstanceError(f"instance spec: {key} needs a positive size and a finite yaw")
-    return Box(tuple(size), tuple(pos), float(yaw))
-
-
-def parse_obstacles(instance) -> tuple[Box, ...]:
-    """The spec's ``obstacles`` list as boxes (InstanceError naming a bad one)."""
-    return tuple(parse_box(o, f"obstacles[{k}]")
-                 for k, o in enumerate(require(instance, "obstacles", list)))
-
-
-def sample_obstacles(rng: np.random.Generator, count: int, size, height, place) -> list[dict]:
-    """``count`` boxes with edges drawn from ``size`` and heights from ``height``, each put
-    where ``place(size)`` says (None: no room left, the box is dropped)."""
-    boxes = []
-    for _ in range(count):
-        edge = rng.uniform(*size, 2)
-        box = place(np.array([edge[0], edge[1], rng.uniform(*height)]))
-        if box is not None:
-            boxes.append(box)
-    return boxes
-
-
 class GraspArmDomain(Domain):
     name = "grasp_arm"
     config_class = GraspArmConfig
@@ -201,7 +105,7 @@ class GraspArmDomain(Domain):
         if c.ik_restarts < 1 or c.pregrasp_offset < 0:
             raise ValueError("domain: need ik_restarts >= 1 and pregrasp_offset >= 0")
         self.grasps = grasp_set()
-        self.rrt = RRTConnect(P.LOWER, P.UPPER, planner)
+        self.motion = self.planner_for(P.Panda)
         self._scene: GraspArmScene | None = None
 
     @property
@@ -258,8 +162,8 @@ class GraspArmDomain(Domain):
                 raise ValueError(f"grasp_arm constraint index {constraint} out of range "
                                  f"0..{len(self.grasps) - 1}")
             return self.grasps[int(constraint)]
-        row = np.asarray(constraint, float)
-        index = _feature_index(tuple(np.round(row, 9))) if row.shape == (6,) else None
+        row = constraint_row(constraint, self.name)
+        index = grasp_index(row)
         if index is None:
             raise ValueError(f"grasp_arm constraint {constraint!r} is neither an index nor a "
                              "grasp's feature row")
@@ -271,11 +175,17 @@ class GraspArmDomain(Domain):
 
     # -- planning --------------------------------------------------------------------------
     def scene(self, inst: GraspArmInstance) -> GraspArmScene:
-        """The process's cached scene (one pybullet client), loaded with ``inst``."""
+        """The domain's scene (one pybullet client, made on first use), loaded with
+        ``inst``."""
         if self._scene is None:
             self._scene = GraspArmScene()
         self._scene.load(inst)
         return self._scene
+
+    def close(self) -> None:
+        if self._scene is not None:
+            self._scene.close()
+            self._scene = None
 
     def _plan(self, inst: GraspArmInstance, g: Grasp, seed: int) -> PlanResult:
         scene = self.scene(inst)
@@ -287,37 +197,26 @@ class GraspArmDomain(Domain):
 
     def _plan_arm(self, inst: GraspArmInstance, g: Grasp, arm: P.Panda, seed: int) -> PlanResult:
         pos, orn = self.pregrasp_pose(inst, g)
-        if np.linalg.norm(pos - arm.shoulder) > P.REACH:  # out of reach: no IK can exist
-            return PlanResult(Status.NO_IK, step="ik")
-        rng = np.random.default_rng([seed, 7])
-        goal, ik_checks, reached = arm.ik(pos, orn, rng, self.config.ik_restarts)
-        if goal is None:  # no solution at all, or only colliding ones
-            status = Status.GOAL_IN_COLLISION if reached else Status.NO_IK
-            return PlanResult(status, checks=ik_checks, step="ik")
-        if self.planner.name == "trajopt":
-            result = trajopt_plan(arm, P.HOME, goal, self.planner)
-        else:
-            result = self.rrt.plan(P.HOME, goal, self.rrt.budget(arm.check), seed=seed)
-        result.checks += ik_checks
+        ik = solve_ik(arm, pos, orn, np.random.default_rng([seed, 7]), self.config.ik_restarts)
+        if not ik.found:
+            return PlanResult(ik.status, checks=ik.checks, step="ik")
+        result = self.motion.plan(arm, P.HOME, ik.q, seed=seed)
+        result.checks += ik.checks
         if not result.feasible:
             result.step = "arm_path"
         return result
 
-    def raw_plan(self, instance, seed: int = 0) -> RawResult:
-        """RAWPLANNER: (arm, grasp) pairs drawn without replacement until one is feasible."""
-        t0 = time.perf_counter()
-        inst = self.check_instance(instance)
-        order = np.random.default_rng([int(seed), 2]).permutation(len(self.grasps))
+    def _raw_search(self, inst: GraspArmInstance, seed: int) -> RawSearch:
+        """(arm, grasp) pairs drawn without replacement until one is feasible."""
+        order = np.random.default_rng([seed, 2]).permutation(len(self.grasps))
         checks = 0
-        plan = PlanResult(Status.NO_IK)
         for tries, j in enumerate(order, start=1):
-            plan = self.plan(inst, int(j), seed=int(seed) + tries)
+            g = self.grasps[int(j)]
+            plan = self.attempt(inst, g, seed + tries)
             checks += plan.checks
             if plan.feasible:
-                break
-        plan.checks, plan.time = checks, time.perf_counter() - t0
-        used = self.grasps[int(j)].features if plan.feasible else np.full(6, np.nan)
-        return RawResult(plan=plan, constraint=used, tries=tries, time=plan.time)
+                return RawSearch(plan, g.features, tries, checks)
+        return RawSearch(plan, None, tries, checks)
 
     # -- inspection ------------------------------------------------------------------------
     def build_scene(self, instance) -> GraspArmScene:
@@ -338,14 +237,4 @@ class GraspArmDomain(Domain):
         return save_png(rgb, path)
 
 
-@functools.lru_cache(maxsize=1)
-def _feature_table() -> dict[tuple, int]:
-    return {tuple(np.round(g.features, 9)): k for k, g in enumerate(grasp_set())}
-
-
-def _feature_index(row: tuple) -> int | None:
-    return _feature_table().get(row)
-
-
-__all__ = ["GraspArmConfig", "GraspArmDomain", "grasp_set", "hand_orientation", "parse_obstacles",
-           "pregrasp_pose", "sample_obstacles"]
+__all__ = ["GraspArmConfig", "GraspArmDomain"]

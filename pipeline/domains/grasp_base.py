@@ -8,8 +8,9 @@ every reachable base pose).  The arm always starts at home.
 A constraint θ = (base pose k, grasp g), g one of the 81 top and side grasps of grasp_arm
 (9 approaches × 3 wrist rotations × 3 depths).  Feature row: (x, y, ψ, approach x, y, z,
 rotation, depth).  π(ω, θ): park the base at k (the platform and the arm at home must be
-collision-free), a collision-free IK solution for g's pre-grasp, then RRT-Connect (or
-TrajOpt) for the arm from home with the base fixed; score = -(joint-space arm path length).
+collision-free), a collision-free IK solution for g's pre-grasp, then the configured planner
+(RRT-Connect or TrajOpt; both check the arm, the platform and the world the same way) for
+the arm from home with the base fixed; score = -(joint-space arm path length).
 
 RAWPLANNER backtracks among three steps, as in the paper: (1) a collision-free base pose
 drawn uniformly from the disc of radius ``reach_radius`` around the target, (2) grasps drawn
@@ -21,22 +22,15 @@ not planned (the paper assumes the base pose reachable from the start).
 
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from pipeline.domains.base import Domain, RawResult, require
-from pipeline.domains.grasp_arm import (
-    Box,
-    Grasp,
-    grasp_set,
-    parse_box,
-    parse_obstacles,
-    pregrasp_pose,
-    sample_obstacles,
-)
+from pipeline.domains.base import Domain, RawSearch, constraint_row
+from pipeline.domains.geometry import Box, sample_obstacles
+from pipeline.domains.grasps import Grasp, grasp_set, pregrasp_pose
+from pipeline.domains.ik import solve_ik
 from pipeline.domains.mobile_world import (
     OBSTACLE_RGBA,
     TARGET_RGBA,
@@ -46,30 +40,17 @@ from pipeline.domains.mobile_world import (
     render_two_panels,
     sample_base_pose,
 )
-from pipeline.planning import PlanResult, RRTConnect, Status
-from pipeline.planning.trajopt import trajopt_plan
+from pipeline.domains.schemas import GraspBaseConfig
+from pipeline.domains.specs import parse_box, parse_obstacles, require
+from pipeline.planning import PlanResult, Status
 from pipeline.sim import panda as P
+from pipeline.sim.mobile import UnladenArm
 
 TABLES = (Table((1.0, 0.0), (0.6, 1.4), 0.40), Table((-0.1, 1.05), (1.4, 0.6), 0.40))
 START_POSE = np.array([0.0, -0.2, 0.0])  # where the robot is drawn at the start
 STEPS = ("base", "ik", "arm_path")
 #: RAWPLANNER stops after this many base-pose draws per collision-free one it asks for
 RAW_DRAWS_PER_SAMPLE = 20
-
-
-@dataclass
-class GraspBaseConfig:
-    """Schema of ``conf/domain/grasp_base.yaml``."""
-
-    name: str = "grasp_base"
-    obstacles: int = 20
-    obstacle_size: list[float] = field(default_factory=lambda: [0.04, 0.10])  # edge, metres
-    obstacle_height: list[float] = field(default_factory=lambda: [0.06, 0.25])
-    target_size: list[float] = field(default_factory=lambda: [0.04, 0.04, 0.12])
-    reach_radius: float = P.REACH  # RAWPLANNER's base-pose disc around the target, metres
-    pregrasp_offset: float = 0.10
-    ik_restarts: int = 10
-    raw_base_samples: int = 40  # collision-free base poses RAWPLANNER tries before giving up
 
 
 @dataclass(frozen=True)
@@ -108,7 +89,7 @@ class GraspBaseDomain(Domain):
         self.grasps = [g for g in grasp_set() if g.arm == 0]
         self._grasp_index = {tuple(np.round(g.features[1:], 9)): k
                              for k, g in enumerate(self.grasps)}
-        self.rrt = RRTConnect(P.LOWER, P.UPPER, planner)
+        self.motion = self.planner_for(UnladenArm)
         self._scene: MobileScene | None = None
 
     @property
@@ -138,7 +119,7 @@ class GraspBaseDomain(Domain):
         """θ from its feature row (x, y, ψ, approach, rotation, depth)."""
         if isinstance(constraint, BaseGrasp):
             return constraint
-        row = np.asarray(constraint, float)
+        row = constraint_row(constraint, self.name)
         index = None
         if row.shape == (8,) and np.all(np.isfinite(row)):
             index = self._grasp_index.get(tuple(np.round(row[3:], 9)))
@@ -150,11 +131,17 @@ class GraspBaseDomain(Domain):
 
     # -- planning --------------------------------------------------------------------------
     def scene(self, inst: GraspBaseInstance) -> MobileScene:
-        """The process's cached scene, loaded with ``inst``."""
+        """The domain's scene (one pybullet client, made on first use), loaded with
+        ``inst``."""
         if self._scene is None:
             self._scene = MobileScene([t.box() for t in TABLES])
         self._scene.load(inst, _instance_boxes(inst))
         return self._scene
+
+    def close(self) -> None:
+        if self._scene is not None:
+            self._scene.close()
+            self._scene = None
 
     def _plan(self, inst: GraspBaseInstance, theta: BaseGrasp, seed: int) -> PlanResult:
         robot = self.scene(inst).robot
@@ -168,39 +155,29 @@ class GraspBaseDomain(Domain):
         robot.set_arm(P.HOME)
         if robot.base_collides(theta.pose):
             return PlanResult(Status.START_IN_COLLISION, checks=1, step="base")
-        goal, checks, status = self._grasp_ik(inst, theta, seed)
-        if goal is None:
-            return PlanResult(status, checks=1 + checks, step="ik")
-        result = self._arm_path(robot, goal, seed)
-        result.checks += 1 + checks
+        ik = self._grasp_ik(robot, inst, theta, seed)
+        if not ik.found:
+            return PlanResult(ik.status, checks=1 + ik.checks, step="ik")
+        result = self._arm_path(robot, ik.q, seed)
+        result.checks += 1 + ik.checks
         return result
 
-    def _grasp_ik(self, inst, theta: BaseGrasp, seed: int):
-        """(collision-free pre-grasp configuration or None, checks, failure status), with
-        the base already parked at θ's pose."""
-        robot = self._scene.robot
+    def _grasp_ik(self, robot, inst, theta: BaseGrasp, seed: int):
+        """The IK step for θ's pre-grasp, the base already parked at θ's pose."""
         pos, orn = pregrasp_pose(inst.target, theta.grasp, self.config.pregrasp_offset)
-        if np.linalg.norm(pos - robot.arm.shoulder) > P.REACH:  # no IK can exist
-            return None, 0, Status.NO_IK
-        goal, checks, reached = robot.ik(pos, orn, np.random.default_rng([seed, 7]),
-                                         self.config.ik_restarts)
-        return goal, checks, (Status.GOAL_IN_COLLISION if reached else Status.NO_IK)
+        return solve_ik(robot, pos, orn, np.random.default_rng([seed, 7]),
+                        self.config.ik_restarts)
 
     def _arm_path(self, robot, goal, seed: int) -> PlanResult:
-        if self.planner.name == "trajopt":
-            result = trajopt_plan(robot.arm, P.HOME, goal, self.planner)
-        else:
-            result = self.rrt.plan(P.HOME, goal, self.rrt.budget(robot.arm_check), seed=seed)
+        result = self.motion.plan(UnladenArm(robot), P.HOME, goal, seed=seed)
         if not result.feasible:
             result.step = "arm_path"
         return result
 
-    def raw_plan(self, instance, seed: int = 0) -> RawResult:
-        """RAWPLANNER: base pose → grasp → arm path, with backtracking (module docstring)."""
-        t0 = time.perf_counter()
-        inst = self.check_instance(instance)
+    def _raw_search(self, inst: GraspBaseInstance, seed: int) -> RawSearch:
+        """Base pose → grasp → arm path, with backtracking (module docstring)."""
         robot = self.scene(inst).robot
-        rng = np.random.default_rng([int(seed), 2])
+        rng = np.random.default_rng([seed, 2])
         centre = np.asarray(inst.target.position[:2])
         checks, tries, free, draws = 0, 0, 0, 0
         plan, used = PlanResult(Status.START_IN_COLLISION, step="base"), None
@@ -216,22 +193,20 @@ class GraspBaseDomain(Domain):
                 for g in rng.permutation(len(self.grasps)):
                     theta = BaseGrasp(pose, self.grasps[int(g)])
                     tries += 1
-                    goal, ik_checks, status = self._grasp_ik(inst, theta, seed + tries)
-                    checks += ik_checks
-                    if goal is None:
-                        plan = PlanResult(status, step="ik")
+                    ik = self._grasp_ik(robot, inst, theta, seed + tries)
+                    checks += ik.checks
+                    if not ik.found:
+                        plan = PlanResult(ik.status, step="ik")
                         continue
                     robot.set_arm(P.HOME)
-                    plan = self._arm_path(robot, goal, seed + tries)
+                    plan = self._arm_path(robot, ik.q, seed + tries)
                     checks += plan.checks
                     if plan.feasible:
                         used = theta
                         break
         finally:
             robot.set_arm(P.HOME)
-        plan.checks, plan.time = checks, time.perf_counter() - t0
-        row = used.features if used is not None else np.full(8, np.nan)
-        return RawResult(plan=plan, constraint=row, tries=tries, time=plan.time)
+        return RawSearch(plan, None if used is None else used.features, tries, checks)
 
     # -- inspection ------------------------------------------------------------------------
     def build_scene(self, instance) -> MobileScene:

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pybullet as pb
 
-from pipeline.domains.grasp_arm import Box
+from pipeline.domains.geometry import Box, rectangle, rectangles_overlap
 from pipeline.sim.mobile import PLATFORM, MobilePanda
-from pipeline.sim.world import add_box, camera_image, connect, rot_z
+from pipeline.sim.world import add_box, camera_image, connect
 
 FURNITURE_RGBA = (0.55, 0.45, 0.35, 1.0)
 FLOOR_RGBA = (0.85, 0.85, 0.82, 1.0)
@@ -31,26 +31,6 @@ class Table:
 
     def box(self) -> Box:
         return Box((*self.size, self.height), (*self.centre, self.height / 2), 0.0)
-
-
-def rectangle(centre, size, yaw: float) -> np.ndarray:
-    """(4, 2) corners of a rectangle of full ``size`` turned by ``yaw``."""
-    half = np.asarray(size[:2], float) / 2
-    corners = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * half
-    return corners @ rot_z(yaw)[:2, :2].T + np.asarray(centre[:2], float)
-
-
-def rectangles_overlap(a: np.ndarray, b: np.ndarray, margin: float = 0.0) -> bool:
-    """Separating-axis test of two convex quadrilaterals (corners in order), ``margin``
-    added to the gap that counts as separation."""
-    for poly in (a, b):
-        for k in range(4):
-            edge = poly[(k + 1) % 4] - poly[k]
-            axis = np.array([-edge[1], edge[0]]) / np.hypot(*edge)
-            pa, pb_ = a @ axis, b @ axis
-            if pa.max() + margin < pb_.min() or pb_.max() + margin < pa.min():
-                return False
-    return True
 
 
 class TablePlacer:
@@ -140,48 +120,42 @@ def render_two_panels(scene: MobileScene, title: str, path, *, eye, target,
     """Camera view of ``scene`` as it is now, beside a floor plan: furniture, boxes, the
     platform's footprint at each of ``poses`` ((pose, colour, label)), the base path as a
     strip of ghost footprints, and ``marks`` (outlined boxes such as a placement)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
     from matplotlib.patches import Polygon
 
     rgb = camera_image(scene.client_id, eye, target, 480, 360)
-    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4), dpi=100,
-                                      gridspec_kw={"width_ratios": [4, 3]})
-    try:
-        left.imshow(rgb)
-        left.axis("off")
-        for b in furniture:
-            right.add_patch(Polygon(rectangle(b.position, b.size, b.yaw),
-                                    color=FURNITURE_RGBA[:3]))
-        for b, rgba in boxes:
-            right.add_patch(Polygon(rectangle(b.position, b.size, b.yaw), color=rgba[:3]))
-        if base_path is not None and len(base_path) > 1:
-            right.plot(base_path[:, 0], base_path[:, 1], color="tab:green", lw=1.5)
-            for q in _ghosts(base_path):
-                right.add_patch(Polygon(rectangle(q[:2], PLATFORM, q[2]), fill=False,
-                                        ec="tab:green", lw=0.5, alpha=0.5))
-        for pose, colour, label in poses:
-            right.add_patch(Polygon(rectangle(pose[:2], PLATFORM, pose[2]), fill=False,
-                                    ec=colour, lw=2, label=label))
-            head = pose[:2] + 0.35 * np.array([np.cos(pose[2]), np.sin(pose[2])])
-            right.plot([pose[0], head[0]], [pose[1], head[1]], color=colour, lw=2)
-        for b, colour, label in marks:
-            right.add_patch(Polygon(rectangle(b.position, b.size, b.yaw), fill=False,
-                                    ec=colour, lw=1.5, ls="--", label=label))
-        right.set_xlim(extent[0], extent[1])
-        right.set_ylim(extent[2], extent[3])
-        right.set_aspect("equal")
-        right.set_title("floor plan", fontsize=9)
-        if poses or marks:
-            right.legend(fontsize=7, loc="upper left")
-        fig.suptitle(title, fontsize=10)
-        fig.tight_layout()
-        out = Path(path)
-        fig.savefig(out)
-    finally:
-        plt.close(fig)
+    fig = Figure(figsize=(10, 4), dpi=100)  # no pyplot: no backend, no global state
+    left, right = fig.subplots(1, 2, gridspec_kw={"width_ratios": [4, 3]})
+    left.imshow(rgb)
+    left.axis("off")
+    for b in furniture:
+        right.add_patch(Polygon(rectangle(b.position, b.size, b.yaw),
+                                color=FURNITURE_RGBA[:3]))
+    for b, rgba in boxes:
+        right.add_patch(Polygon(rectangle(b.position, b.size, b.yaw), color=rgba[:3]))
+    if base_path is not None and len(base_path) > 1:
+        right.plot(base_path[:, 0], base_path[:, 1], color="tab:green", lw=1.5)
+        for q in _ghosts(base_path):
+            right.add_patch(Polygon(rectangle(q[:2], PLATFORM, q[2]), fill=False,
+                                    ec="tab:green", lw=0.5, alpha=0.5))
+    for pose, colour, label in poses:
+        right.add_patch(Polygon(rectangle(pose[:2], PLATFORM, pose[2]), fill=False,
+                                ec=colour, lw=2, label=label))
+        head = pose[:2] + 0.35 * np.array([np.cos(pose[2]), np.sin(pose[2])])
+        right.plot([pose[0], head[0]], [pose[1], head[1]], color=colour, lw=2)
+    for b, colour, label in marks:
+        right.add_patch(Polygon(rectangle(b.position, b.size, b.yaw), fill=False,
+                                ec=colour, lw=1.5, ls="--", label=label))
+    right.set_xlim(extent[0], extent[1])
+    right.set_ylim(extent[2], extent[3])
+    right.set_aspect("equal")
+    right.set_title("floor plan", fontsize=9)
+    if poses or marks:
+        right.legend(fontsize=7, loc="upper left")
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    out = Path(path)
+    fig.savefig(out)
     return out
 
 

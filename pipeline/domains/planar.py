@@ -10,37 +10,15 @@ via-point it used is the constraint extracted from its solution.
 
 from __future__ import annotations
 
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from pipeline.domains.base import (
-    Domain,
-    InstanceError,
-    RawResult,
-    finite_rows,
-    require,
-)
-from pipeline.planning import PlanResult, RRTConnect, Status
-from pipeline.planning.result import path_length
-
-
-@dataclass
-class PlanarConfig:
-    """Schema of ``conf/domain/planar.yaml``."""
-
-    name: str = "planar"
-    size: float = 10.0  # the room is [0, size]²
-    robot_radius: float = 0.25
-    start: list[float] = field(default_factory=lambda: [1.0, 5.0])
-    goal: list[float] = field(default_factory=lambda: [9.0, 5.0])
-    obstacles_min: int = 4
-    obstacles_max: int = 12
-    obstacle_size_min: float = 0.5
-    obstacle_size_max: float = 3.0
-    raw_max_tries: int = 50  # via-points RAWPLANNER draws before giving up
+from pipeline.domains.base import Domain, RawSearch, constraint_row
+from pipeline.domains.schemas import PlanarConfig
+from pipeline.domains.specs import InstanceError, finite_rows, require
+from pipeline.planning import PlanResult, Robot, Status, path_length
 
 
 @dataclass(frozen=True)
@@ -49,16 +27,19 @@ class PlanarInstance:
     boxes: np.ndarray  # (k, 4): centre x, centre y, width, height
 
 
-class PlanarScene:
-    """The room as plain geometry (no simulator): the robot's centre is the configuration."""
+class PlanarScene(Robot):
+    """The room as plain geometry (no simulator), and the disc robot's model: its centre is
+    the configuration, inside ``lower``/``upper``."""
 
+    description = "the planar disc robot"
     client_id = None
     robot_ids = ()
 
-    def __init__(self, boxes: np.ndarray, radius: float):
+    def __init__(self, boxes: np.ndarray, radius: float, lower=None, upper=None):
         self.lo = boxes[:, :2] - boxes[:, 2:] / 2
         self.hi = boxes[:, :2] + boxes[:, 2:] / 2
         self.radius = radius
+        self.lower, self.upper = lower, upper
         self.configuration = None
 
     def set_configuration(self, q) -> None:
@@ -85,9 +66,6 @@ class PlanarDomain(Domain):
 
     def __init__(self, config: PlanarConfig, planner):
         super().__init__(config, planner)
-        if planner.name == "trajopt":
-            raise ValueError("planner=trajopt plans Panda arms (domain=grasp_arm); the planar "
-                             "domain uses planner=rrt_connect")
         c = config
         if not (c.size > 0 and 0 < c.robot_radius < c.size / 4):
             raise ValueError("domain: need size > 0 and 0 < robot_radius < size / 4")
@@ -104,7 +82,7 @@ class PlanarDomain(Domain):
         for key, q in (("start", self.start), ("goal", self.goal)):
             if q.shape != (2,) or np.any(q < self.lower) or np.any(q > self.upper):
                 raise ValueError(f"domain.{key} must be 2 numbers inside the room")
-        self.rrt = RRTConnect(self.lower, self.upper, planner)
+        self.motion = self.planner_for(PlanarScene)
 
     @property
     def n_features(self) -> int:
@@ -138,17 +116,17 @@ class PlanarDomain(Domain):
 
     def constraint(self, constraint) -> np.ndarray:
         """The via-point θ as a 2-vector."""
-        via = np.asarray(constraint, dtype=float)
+        via = constraint_row(constraint, self.name)
         if via.shape != (2,) or not np.all(np.isfinite(via)):
             raise ValueError(f"planar constraint must be 2 finite numbers, got {constraint!r}")
         return via
 
     def _plan(self, inst: PlanarInstance, via: np.ndarray, seed: int) -> PlanResult:
-        scene = self.build_scene(inst)
-        budget = self.rrt.budget(scene.check)
+        robot = self.build_scene(inst)
+        budget = self.motion.budget(robot)
         legs = []
         for leg, (a, b) in enumerate(((self.start, via), (via, self.goal))):
-            result = self.rrt.plan(a, b, budget, seed=2 * seed + leg)
+            result = self.motion.plan(robot, a, b, seed=2 * seed + leg, budget=budget)
             if not result.feasible:
                 result.checks, result.step = budget.used, self.steps[leg]
                 return result
@@ -156,50 +134,42 @@ class PlanarDomain(Domain):
         path = np.concatenate([legs[0], legs[1][1:]])
         return PlanResult(Status.OK, path=path, length=path_length(path), checks=budget.used)
 
-    def raw_plan(self, instance, seed: int = 0) -> RawResult:
-        t0 = time.perf_counter()
-        inst = self.check_instance(instance)
-        rng = np.random.default_rng([int(seed), 2])
+    def _raw_search(self, inst: PlanarInstance, seed: int) -> RawSearch:
+        """Via-points drawn uniformly in the room until one gives a path."""
+        rng = np.random.default_rng([seed, 2])
         checks = 0
-        plan = PlanResult(Status.GOAL_IN_COLLISION)
         for tries in range(1, self.config.raw_max_tries + 1):
             via = rng.uniform(self.lower, self.upper)
-            plan = self.plan(inst, via, seed=int(seed) * self.config.raw_max_tries + tries)
+            plan = self.attempt(inst, via, seed * self.config.raw_max_tries + tries)
             checks += plan.checks
             if plan.feasible:
-                break
-        plan.checks, plan.time = checks, time.perf_counter() - t0
-        used = via if plan.feasible else np.full(2, np.nan)
-        return RawResult(plan=plan, constraint=used, tries=tries, time=plan.time)
+                return RawSearch(plan, via, tries, checks)
+        return RawSearch(plan, None, tries, checks)
 
     def build_scene(self, instance) -> PlanarScene:
-        return PlanarScene(self.check_instance(instance).boxes, self.config.robot_radius)
+        return PlanarScene(self.check_instance(instance).boxes, self.config.robot_radius,
+                           self.lower, self.upper)
 
     def render(self, instance, plan: PlanResult | None = None, path="planar.png",
                constraint=None) -> Path:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        from matplotlib.figure import Figure
         from matplotlib.patches import Circle, Rectangle
 
         inst = self.check_instance(instance)
-        fig, ax = plt.subplots(figsize=(4, 4), dpi=100)
-        try:
-            ax.set_xlim(0, self.config.size)
-            ax.set_ylim(0, self.config.size)
-            ax.set_aspect("equal")
-            for x, y, w, h in inst.boxes:
-                ax.add_patch(Rectangle((x - w / 2, y - h / 2), w, h, color="0.45"))
-            for q, colour in ((self.start, "tab:green"), (self.goal, "tab:red")):
-                ax.add_patch(Circle(q, self.config.robot_radius, color=colour))
-            if constraint is not None:
-                ax.plot(*self.constraint(constraint), marker="x", color="tab:orange", ms=10)
-            if plan is not None and plan.feasible:
-                ax.plot(plan.path[:, 0], plan.path[:, 1], color="tab:blue", lw=2)
-            ax.set_title(f"planar instance {inst.seed}")
-            out = Path(path)
-            fig.savefig(out)
-        finally:
-            plt.close(fig)
+        fig = Figure(figsize=(4, 4), dpi=100)  # no pyplot: no backend, no global state
+        ax = fig.subplots()
+        ax.set_xlim(0, self.config.size)
+        ax.set_ylim(0, self.config.size)
+        ax.set_aspect("equal")
+        for x, y, w, h in inst.boxes:
+            ax.add_patch(Rectangle((x - w / 2, y - h / 2), w, h, color="0.45"))
+        for q, colour in ((self.start, "tab:green"), (self.goal, "tab:red")):
+            ax.add_patch(Circle(q, self.config.robot_radius, color=colour))
+        if constraint is not None:
+            ax.plot(*self.constraint(constraint), marker="x", color="tab:orange", ms=10)
+        if plan is not None and plan.feasible:
+            ax.plot(plan.path[:, 0], plan.path[:, 1], color="tab:blue", lw=2)
+        ax.set_title(f"planar instance {inst.seed}")
+        out = Path(path)
+        fig.savefig(out)
         return out

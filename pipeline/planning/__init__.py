@@ -1,6 +1,13 @@
-"""Motion planning shared by every domain: results, statuses and the RRT-Connect planner."""
+"""Motion planning (docs/architecture.md): results and statuses, the base every planner
+and robot share (robot model, checks, budget), the planner interface, one module per
+planner (``rrt_connect``, ``trajopt``, ``noop``) and the registry.  Importing this package
+loads no planner (and so neither OMPL nor scipy's optimisers)."""
 
-from pipeline.planning.result import PlanResult, Status
-from pipeline.planning.rrt import PlannerSettings, RRTConnect, interpolate
+from pipeline.planning.base import Budget, Robot, RobotModel, interpolate, path_is_free
+from pipeline.planning.interface import Planner
+from pipeline.planning.registry import PLANNERS, PlannerSettings, make_planner
+from pipeline.planning.result import PlanResult, Status, path_length
 
-__all__ = ["PlanResult", "PlannerSettings", "RRTConnect", "Status", "interpolate"]
+__all__ = ["PLANNERS", "Budget", "PlanResult", "Planner", "PlannerSettings", "Robot",
+           "RobotModel", "Status", "interpolate", "make_planner", "path_is_free",
+           "path_length"]

@@ -28,13 +28,14 @@ result is a function of the inputs alone.  The waypoints are only checked at the
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import minimize
 
+from pipeline.planning.base import DistanceModel, recheck
+from pipeline.planning.interface import Planner
 from pipeline.planning.result import PlanResult, Status, path_length
 
 #: Initial weight of the proximal term rho/2 |z - z0|^2 that, with the per-joint step limit,
@@ -43,10 +44,6 @@ PROXIMAL = 1.0
 
 #: Distances this far inside the margin (metres) still count as clear.
 SLACK = 1e-6
-
-#: ``contacts(q) -> (d, g)``: signed distances (k,) of the pairs closer than the query
-#: distance at configuration q, and their gradients (k, dof).
-DistanceModel = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
 
 @dataclass(frozen=True)
@@ -228,33 +225,51 @@ def optimise(start, goal, lower, upper, contacts: DistanceModel,
 QUERY_BUFFER = 0.03
 
 
-def trajopt_plan(robot, start, goal, settings) -> PlanResult:
-    """π's motion-planning step with TrajOpt for a robot with ``obstacles()``,
-    ``distances(q, bodies, query)``, ``check(states)`` and joint limits ``lower``/``upper``.
+def options(settings) -> TrajOptOptions:
+    """TrajOpt's options from the ``trajopt_*`` planner settings (ValueError naming a bad
+    one)."""
+    s = settings
+    if s.trajopt_waypoints < 3:
+        raise ValueError(f"planner.trajopt_waypoints must be >= 3, got {s.trajopt_waypoints}")
+    if (s.trajopt_margin < 0 or s.trajopt_penalty <= 0 or s.trajopt_penalty_rounds < 1
+            or s.trajopt_iterations < 1 or s.trajopt_trust_radius <= 0):
+        raise ValueError("planner.trajopt_*: margin must be >= 0, penalty and "
+                         "trust_radius > 0, penalty_rounds and iterations >= 1")
+    return TrajOptOptions(waypoints=s.trajopt_waypoints, margin=s.trajopt_margin,
+                          penalty=s.trajopt_penalty, penalty_rounds=s.trajopt_penalty_rounds,
+                          iterations=s.trajopt_iterations, trust_radius=s.trajopt_trust_radius)
 
-    Feasible only when the optimised trajectory passes the same dense re-check as RRT
-    paths (every edge at ``settings.resolution``); score = -(joint-space length).
+
+class TrajOpt(Planner):
+    """π's motion-planning step by trajectory optimisation, for robots with signed
+    distances (``distance_model``).
+
+    Feasible only when the optimised trajectory passes the robot's dense re-check (every
+    edge at ``settings.resolution``, the same checks RRT-Connect's edges get); score =
+    -(joint-space length).  Its ``checks`` count distance queries and re-checked states;
+    it has no check budget (a shared ``budget`` is left untouched).
     """
-    from pipeline.planning.rrt import interpolate
 
-    opts = settings.trajopt_options()
-    bodies = robot.obstacles()
-    deadline = time.perf_counter() + settings.wall_cap_s
-    res = optimise(start, goal, robot.lower, robot.upper,
-                   lambda q: robot.distances(q, bodies, opts.margin + QUERY_BUFFER), opts,
-                   deadline=deadline)
-    checks = res.distance_queries
-    if time.perf_counter() > deadline:
-        return PlanResult(Status.TIMEOUT, checks=checks)
-    path = res.trajectory
-    ok, used = robot.check(path[:1])
-    checks += used
-    for a, b in zip(path[:-1], path[1:], strict=True):
-        if not ok:
-            break
-        ok, used = robot.check(interpolate(a, b, settings.resolution))
+    name = "trajopt"
+    requires = frozenset({"distances"})
+
+    def __init__(self, settings):
+        super().__init__(settings)
+        self.options = options(settings)
+
+    def plan(self, robot, start, goal, seed: int = 0, budget=None) -> PlanResult:
+        opts = self.options
+        deadline = time.perf_counter() + self.settings.wall_cap_s
+        res = optimise(start, goal, robot.lower, robot.upper,
+                       robot.distance_model(opts.margin + QUERY_BUFFER), opts,
+                       deadline=deadline)
+        checks = res.distance_queries
+        if time.perf_counter() > deadline:
+            return PlanResult(Status.TIMEOUT, checks=checks)
+        path = res.trajectory
+        ok, used = recheck(robot, path, self.settings.resolution)
         checks += used
-    if not ok:  # the margin is TrajOpt's target; the dense re-check decides feasibility
-        status = Status.PATH_IN_COLLISION if res.converged else Status.NOT_CONVERGED
-        return PlanResult(status, checks=checks)
-    return PlanResult(Status.OK, path=path, length=path_length(path), checks=checks)
+        if not ok:  # the margin is TrajOpt's target; the dense re-check decides feasibility
+            status = Status.PATH_IN_COLLISION if res.converged else Status.NOT_CONVERGED
+            return PlanResult(status, checks=checks)
+        return PlanResult(Status.OK, path=path, length=path_length(path), checks=checks)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.evaluation import RAWPLANNER, load_matrix
+from pipeline.evaluation import RAWPLANNER, load_matrix, own_constraints
 from pipeline.store import ScoreStore, StoreError
 
 
@@ -48,6 +48,8 @@ class StoreResults:
     first_feasible_time: dict[str, np.ndarray]
     best_score: dict[str, np.ndarray]
     order: dict[str, np.ndarray]
+    leakage: dict | None = None  # {"own_constraint_rows", "hidden"} as stage evaluate stored
+    forbidden: np.ndarray | None = None  # (n, m) columns hidden from their own row, if any
 
     @property
     def domain(self) -> str:
@@ -116,4 +118,6 @@ def load(path) -> StoreResults:
         eligible=store.array("evaluation/eligible")[...],
         optimal_score=store.array("evaluation/optimal_score")[...],
         first_feasible_time=fft, best_score=best, order=order,
+        leakage=info.get("leakage"),
+        forbidden=own_constraints(store) if (info.get("leakage") or {}).get("hidden") else None,
     )

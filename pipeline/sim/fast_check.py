@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as pb
 
+from pipeline.planning.base import Robot
 from pipeline.sim import collide, spheres, wrist
 
 #: extra radius (metres) of the robot's spheres and of other robots' spheres: pybullet
@@ -157,7 +158,7 @@ def _bounding(centres: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, float
 
 
 @dataclass
-class Robot:
+class SphereRobot:
     """Sphere groups (each on one frame) and boxes (each on one frame) of a robot."""
 
     grp_frame: np.ndarray
@@ -180,7 +181,7 @@ class Robot:
         self.rbox_r = np.linalg.norm(self.rbox_h, axis=1)
 
     @classmethod
-    def build(cls, groups, pairs=(), boxes=(), box_pairs=()) -> Robot:
+    def build(cls, groups, pairs=(), boxes=(), box_pairs=()) -> SphereRobot:
         """``groups``: (frame, centres (K, 3), radii (K,), tested against the world);
         ``pairs``: group index pairs tested against each other; ``boxes``: (frame,
         4 × 4 pose in it, half extents); ``box_pairs``: (box, group) tested against each
@@ -254,7 +255,7 @@ class SphereChecker:
     check of one row (True: collides); ``certified`` False sends every row to ``exact``.
     """
 
-    def __init__(self, robot: Robot | None, world: World | None, frames: Callable,
+    def __init__(self, robot: SphereRobot | None, world: World | None, frames: Callable,
                  exact: Callable[[np.ndarray], bool], certified: bool = True,
                  also: Callable[[np.ndarray], np.ndarray] | None = None):
         self.robot, self.world, self.frames, self.exact = robot, world, frames, exact
@@ -334,9 +335,9 @@ def _panda_parts(ignored: frozenset):
 
 
 @functools.lru_cache(maxsize=8)
-def _panda_robot(ignored: frozenset) -> Robot:
+def _panda_robot(ignored: frozenset) -> SphereRobot:
     groups, _, pairs = _panda_parts(ignored)
-    return Robot.build(groups, pairs)
+    return SphereRobot.build(groups, pairs)
 
 
 def _arm_robot(client: int, arm_body: int, ignored_pairs, held, hand_links):
@@ -351,7 +352,7 @@ def _arm_robot(client: int, arm_body: int, ignored_pairs, held, hand_links):
     if box is None:
         return None, frames, False
     arm_links = [(0, index[link]) for link in index if link not in hand_links]
-    return Robot.build(groups, pairs, boxes=[box], box_pairs=arm_links), frames, True
+    return SphereRobot.build(groups, pairs, boxes=[box], box_pairs=arm_links), frames, True
 
 
 def arm_checker(client: int, arm_body: int, ignored_pairs, exact, *, held=None,
@@ -402,7 +403,7 @@ def base_checker(client: int, arm_body: int, platform: int, base_pose: np.ndarra
         if box is None:
             return SphereChecker(None, None, None, exact, certified=False)
         boxes.append(box)
-    robot = Robot.build(groups, boxes=boxes)
+    robot = SphereRobot.build(groups, boxes=boxes)
     world = World.read(client, {arm_body, platform} | ({held[0]} if held is not None else set()))
 
     def base_frames(states):
@@ -439,27 +440,45 @@ def internal_clearance(robot) -> float:
     return out
 
 
-def certified(check):
-    """The sphere-certified version of a robot's exact checker (same answers and counts);
-    ``check`` itself when it is not one this module knows.  Call it when a planning call
-    starts: the world is read now."""
-    from pipeline.sim.mobile import BaseCheck, MobilePanda
+class CertifiedRobot(Robot):
+    """A robot model whose ``check`` is a :class:`SphereChecker` of ``model``'s (same
+    answers and counts); the rest of the model is ``model``'s."""
+
+    def __init__(self, model, checker: SphereChecker):
+        self.model, self.checker = model, checker
+        self.lower, self.upper = model.lower, model.upper
+        self.description = model.description
+
+    def check(self, states: np.ndarray) -> tuple[bool, int]:
+        return self.checker(states)
+
+    def __getattr__(self, name):  # optional capabilities (distance_model) are the model's
+        return getattr(self.model, name)
+
+
+def certified(model):
+    """``model`` (a robot model) with sphere-certified checks, or ``model`` itself when it
+    is not one this module knows.  Call it when a planning call starts: the world is read
+    now."""
+    from pipeline.sim.mobile import MobileArm, MobileBase
     from pipeline.sim.panda import Panda
 
-    owner, func = getattr(check, "__self__", None), getattr(check, "__func__", None)
-    if isinstance(owner, Panda) and func is Panda.check:
-        return arm_checker(owner.client, owner.body, owner.ignored_pairs, owner.collides_at)
-    if isinstance(owner, MobilePanda) and func is MobilePanda.arm_check:
-        return arm_checker(owner.client, owner.body, owner.arm.ignored_pairs,
-                           owner.arm_collides, held=_held(owner, hand=True),
-                           hand_links=owner.hand_links, fixed_robot=(owner.platform,))
-    if isinstance(check, BaseCheck):
-        r = check.robot
+    if isinstance(model, Panda):
+        checker = arm_checker(model.client, model.body, model.ignored_pairs, model.collides_at)
+    elif isinstance(model, MobileArm):
+        r = model.robot
+        checker = arm_checker(r.client, r.body, r.arm.ignored_pairs, r.arm_collides,
+                              held=_held(r, hand=True), hand_links=r.hand_links,
+                              fixed_robot=(r.platform,))
+    elif isinstance(model, MobileBase):
+        r = model.robot
         r.set_base(r.pose)  # the held object where base checks will put it
-        return base_checker(r.client, r.body, r.platform, r.base_frame(), check.psi_scale,
-                            check.collides, internal_clearance(r) > INTERNAL_CLEARANCE,
-                            held=_held(r, hand=False))
-    return check
+        checker = base_checker(r.client, r.body, r.platform, r.base_frame(), model.psi_scale,
+                               model.collides, internal_clearance(r) > INTERNAL_CLEARANCE,
+                               held=_held(r, hand=False))
+    else:
+        return model
+    return CertifiedRobot(model, checker)
 
 
 def _held(robot, hand: bool):

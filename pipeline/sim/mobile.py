@@ -2,12 +2,17 @@
 
 The platform is a box (``PLATFORM``) and the arm is mounted on its top, ``MOUNT`` metres
 ahead of its centre.  Moving the base resets three bodies (platform, arm and, when one is
-held, the object): DESIGN.md §4 measured about 30 µs per reset.
+held, the object), about 30 µs per reset as measured for this project.
 
 A held object follows the hand rigidly.  During base motion the arm does not move, so the
 object's pose in the base frame is fixed and no forward kinematics is needed per check;
 during arm motion it is placed from the TCP pose at every check.  Contacts between the
 held object and the hand or fingers are the grasp itself, not collisions.
+
+What planners see of it are robot models (:class:`pipeline.planning.base.RobotModel`):
+:class:`MobileArm` (the arm, base fixed; may hold an object), :class:`UnladenArm` (the same
+with signed distances, for a robot that holds nothing) and :class:`MobileBase` (the base
+in (x, y, psi_scale · ψ), arm fixed).
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 import pybullet as pb
 
+from pipeline.planning.base import Robot
 from pipeline.sim import panda as P
 from pipeline.sim.world import add_box, pose_matrix, quaternion, rot_z
 
@@ -128,9 +134,9 @@ class MobilePanda:
                 return False, k + 1
         return True, len(states)
 
-    def base_checker(self, psi_scale: float) -> BaseCheck:
-        """Checker for base paths whose states are (x, y, psi_scale · ψ), arm fixed."""
-        return BaseCheck(self, psi_scale)
+    @property
+    def shoulder(self) -> np.ndarray:
+        return self.arm.shoulder
 
     # -- what the sphere pre-check (pipeline.sim.fast_check) reads -------------------------
     hand_links = HAND_LINKS
@@ -154,17 +160,46 @@ class MobilePanda:
         return _pose_of(self.held, self.client)
 
 
-class BaseCheck:
-    """The exact checker of base states (x, y, psi_scale · ψ) of ``robot``, arm fixed."""
+class MobileArm(Robot):
+    """The arm of a :class:`MobilePanda` whose base stands still; its checks include the
+    platform and the held object, if any."""
 
-    def __init__(self, robot: MobilePanda, psi_scale: float):
+    description = "the mobile Panda's arm, which may hold an object,"
+    lower, upper = P.LOWER, P.UPPER
+
+    def __init__(self, robot: MobilePanda):
+        self.robot = robot
+
+    def check(self, states: np.ndarray) -> tuple[bool, int]:
+        return self.robot.arm_check(states)
+
+
+class UnladenArm(MobileArm):
+    """:class:`MobileArm` of a robot that holds nothing: its signed distances are the arm
+    links' (the platform counts as an obstacle)."""
+
+    description = "the mobile Panda's empty-handed arm"
+
+    def distance_model(self, query: float):
+        return self.robot.arm.distance_model(query)
+
+
+class MobileBase(Robot):
+    """The base of a :class:`MobilePanda` with the arm (and anything held) fixed; states
+    are (x, y, psi_scale · ψ) so that one resolution is metres in every coordinate."""
+
+    description = "the mobile Panda's base"
+
+    def __init__(self, robot: MobilePanda, psi_scale: float, lower, upper):
         self.robot, self.psi_scale = robot, psi_scale
+        self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
 
     def collides(self, s) -> bool:
         return self.robot.base_collides((s[0], s[1], s[2] / self.psi_scale))
 
-    def __call__(self, states: np.ndarray) -> tuple[bool, int]:
+    def check(self, states: np.ndarray) -> tuple[bool, int]:
         for k, s in enumerate(states):
             if self.collides(s):
                 return False, k + 1
         return True, len(states)
+

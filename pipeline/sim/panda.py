@@ -1,6 +1,8 @@
 """The Franka Panda in pybullet: fast collision checks and IK with seeded restarts.
 
-Collision check (DESIGN.md §4, the fastest method measured): set all seven joints with one
+A :class:`pipeline.planning.base.RobotModel` with distances (docs/architecture.md).
+
+Collision check (the fastest method measured for this project): set all seven joints with one
 ``resetJointStatesMultiDof`` call, ``performCollisionDetection``, then look for contacts of
 the arm with penetration (distance < 0).  Self-collision is on, with the link pairs that
 touch at the home configuration or are parent and child filtered out.  The base link does
@@ -12,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pybullet as pb
 
+from pipeline.planning.base import Robot
 from pipeline.sim.world import yaw_quaternion
 
 ARM_JOINTS = tuple(range(7))
@@ -24,9 +27,10 @@ REACH = 0.855  # from the shoulder (joint 2) to the TCP at full stretch, metres
 SHOULDER_HEIGHT = 0.333
 
 
-class Panda:
+class Panda(Robot):
     """One Panda arm in ``client``; fingers held open."""
 
+    description = "a fixed Panda arm"
     lower, upper = LOWER, UPPER
 
     def __init__(self, client: int, base_position, *, finger_opening: float = 0.04):
@@ -93,6 +97,12 @@ class Panda:
         ids = (pb.getBodyUniqueId(i, physicsClientId=c) for i in
                range(pb.getNumBodies(physicsClientId=c)))
         return [b for b in ids if b != self.body]
+
+    def distance_model(self, query: float):
+        """Signed distances to every other body in the client as it is now (the robot
+        model's ``distances`` capability): ``q -> distances(q, bodies, query)``."""
+        bodies = self.obstacles()
+        return lambda q: self.distances(q, bodies, query)
 
     def distances(self, q, bodies, query: float) -> tuple[np.ndarray, np.ndarray]:
         """Signed distances (k,) of the arm's links to ``bodies`` closer than ``query`` at

@@ -1,0 +1,78 @@
+"""The pick_place scene: the mobile Panda's scene with the instance's obstacles and the rod,
+and the few things the steps do to it (reset, hold the rod, put it somewhere, check it)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet as pb
+
+from pipeline.domains.geometry import Box
+from pipeline.domains.mobile_world import OBSTACLE_RGBA, MobileScene
+from pipeline.domains.pick_place.world import (
+    ROD_RGBA,
+    ROOMS,
+    START_POSE,
+    PickPlaceInstance,
+    RodGrasp,
+    start_rod,
+)
+from pipeline.sim import panda as P
+from pipeline.sim.mobile import MobileArm, MobileBase
+from pipeline.sim.world import add_box, quaternion, rot_z
+
+
+class PickPlaceScene:
+    """One pybullet client: floor, furniture, the mobile Panda, the instance's obstacles and
+    the rod (a movable body, so that its contacts with the static world are reported)."""
+
+    def __init__(self, furniture: list[Box], psi_scale: float):
+        self.mobile = MobileScene(furniture)
+        self.client_id = self.mobile.client_id
+        self.robot = self.mobile.robot
+        self.robot_ids = self.mobile.robot_ids
+        self.rod: int | None = None
+        #: the robot models planners see: the arm (base fixed, rod checked when held) and
+        #: the base in (x, y, psi_scale · ψ) inside the rooms (arm fixed)
+        self.arm = MobileArm(self.robot)
+        self.base = MobileBase(self.robot, psi_scale, [ROOMS[0], ROOMS[2], -np.pi * psi_scale],
+                               [ROOMS[1], ROOMS[3], np.pi * psi_scale])
+
+    def load(self, inst: PickPlaceInstance) -> None:
+        """Put ``inst``'s obstacles and rod in (unless it is loaded already) and reset."""
+        if self.mobile.key != inst:
+            bodies = self.mobile.load(inst, [(b, OBSTACLE_RGBA) for b in inst.obstacles])
+            rod = start_rod(inst.rod_length)
+            bodies.append(add_box(self.client_id, rod.size, rod.position, 0.0, rgba=ROD_RGBA,
+                                  movable=True))
+            self.rod = bodies[-1]
+        self.reset(inst)
+
+    def reset(self, inst: PickPlaceInstance) -> None:
+        """Rod on the start table, robot at the start with the arm at home, nothing held."""
+        self.robot.release()
+        self.put_rod(start_rod(inst.rod_length))
+        self.robot.set_base(START_POSE)
+        self.robot.set_arm(P.HOME)
+
+    def put_rod(self, box: Box) -> None:
+        pb.resetBasePositionAndOrientation(self.rod, list(box.position),
+                                           quaternion(rot_z(box.yaw)).tolist(),
+                                           physicsClientId=self.client_id)
+
+    def rod_collides(self) -> bool:
+        c = self.client_id
+        pb.performCollisionDetection(physicsClientId=c)
+        return any(pt[8] < 0 for pt in pb.getContactPoints(bodyA=self.rod, physicsClientId=c))
+
+    def hold(self, inst: PickPlaceInstance, g: RodGrasp, carry: np.ndarray) -> None:
+        """The rod in the hand, the arm in the carry configuration."""
+        self.robot.release()
+        self.robot.set_arm(carry)
+        self.robot.grasp(self.rod, np.linalg.inv(g.rod_tcp(inst.rod_length)))
+
+    def set_configuration(self, q) -> None:
+        """q = (x, y, ψ, 7 arm joints)."""
+        self.mobile.set_configuration(q)
+
+    def close(self) -> None:
+        self.mobile.close()

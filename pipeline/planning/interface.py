@@ -1,0 +1,48 @@
+"""The planner interface (OMPL's ``base::Planner``): settings in, a robot model and two
+configurations per call, a :class:`PlanResult` out.  See docs/architecture.md."""
+
+from __future__ import annotations
+
+import abc
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+
+from pipeline.planning.base import Budget, RobotModel
+from pipeline.planning.result import PlanResult
+
+if TYPE_CHECKING:
+    from pipeline.planning.registry import PlannerSettings
+
+
+class Planner(abc.ABC):
+    """One motion planner.  Subclasses set ``name`` and ``requires`` (the optional robot
+    capabilities of :data:`pipeline.planning.base.CAPABILITIES` they need; the registry
+    refuses robots that lack one) and implement :meth:`plan`."""
+
+    name: ClassVar[str]
+    requires: ClassVar[frozenset[str]] = frozenset()
+    #: True for a planner that plans nothing: domains record every score entry as skipped
+    #: and leave RAWPLANNER (which needs real solutions) to ``stand_in``
+    plans_nothing: ClassVar[bool] = False
+    stand_in: ClassVar[str | None] = None
+
+    def __init__(self, settings: PlannerSettings):
+        self.settings = settings
+
+    def budget(self, robot: RobotModel) -> Budget:
+        """A check budget for one call, to share between the motions of a multi-leg call;
+        make it once the scene is set for the call (``planner.collision=spheres`` reads
+        the world now)."""
+        if getattr(self.settings, "collision", "exact") == "spheres":
+            from pipeline.sim.fast_check import certified
+
+            robot = certified(robot)
+        return Budget(robot, self.settings.max_checks, self.settings.wall_cap_s)
+
+    @abc.abstractmethod
+    def plan(self, robot: RobotModel, start: np.ndarray, goal: np.ndarray, seed: int,
+             budget: Budget | None = None) -> PlanResult:
+        """A path start→goal inside ``robot``'s limits, every configuration and edge
+        checked by ``robot``.  ``seed`` (an int >= 0) fixes every random number; checks
+        are charged to ``budget`` (a fresh one when None) and reported in ``checks``."""

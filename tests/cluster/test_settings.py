@@ -1,0 +1,68 @@
+"""Cluster settings checked before any work; where a started scheduler listens; how many
+workers a local cluster gets inside an allocation."""
+
+from __future__ import annotations
+
+import io
+
+import psutil
+import pytest
+from rich.console import Console
+
+from pipeline.cluster import ClusterError, available_cores, connect
+from pipeline.cluster.checks import check_config
+from pipeline.configs import ClusterConfig, ClusterKind, SlurmConfig
+
+
+@pytest.mark.parametrize(("changes", "key"), [
+    ({"n_workers": 0}, "cluster.n_workers"),
+    ({"worker_timeout": 0}, "cluster.worker_timeout"),
+    ({"connect_timeout": -1}, "cluster.connect_timeout"),
+    ({"dashboard_address": "8787"}, "cluster.dashboard_address"),
+    ({"kind": ClusterKind.address}, "cluster.address"),
+    ({"kind": ClusterKind.slurm, "slurm": SlurmConfig(cores=0)}, "cluster.slurm.cores"),
+    ({"kind": ClusterKind.slurm, "slurm": SlurmConfig(memory_per_worker="lots")},
+     "cluster.slurm.memory_per_worker"),
+    ({"kind": ClusterKind.slurm, "slurm": SlurmConfig(max_replacements=-1)},
+     "cluster.slurm.max_replacements"),
+])
+def test_bad_keys_are_named(changes, key):
+    with pytest.raises(ClusterError, match=key.replace(".", r"\.")) as info:
+        check_config(ClusterConfig(**changes))
+    assert "\n" not in str(info.value)
+
+
+def _listening(process: psutil.Process) -> set[str]:
+    return {c.laddr.ip for c in process.net_connections(kind="inet")
+            if c.status == psutil.CONN_LISTEN}
+
+
+def test_local_cluster_listens_on_loopback_only_and_says_where():
+    out = io.StringIO()
+    console = Console(file=out, width=200)
+    with connect(ClusterConfig(n_workers=1), console) as client:
+        me = psutil.Process()
+        hosts = _listening(me)
+        for child in me.children(recursive=True):
+            hosts |= _listening(child)
+        address = client.scheduler.address
+        port = client.scheduler_info()["services"]["dashboard"]
+        ports = {c.laddr.port for c in me.net_connections(kind="inet")
+                 if c.status == psutil.CONN_LISTEN}
+    assert hosts == {"127.0.0.1"}
+    assert port in ports
+    assert f"dask: 1 worker at {address}; dashboard http://127.0.0.1:{port}/status" \
+        in out.getvalue()
+
+
+def test_local_workers_follow_the_allocation(monkeypatch):
+    monkeypatch.delenv("SLURM_CPUS_PER_TASK", raising=False)
+    monkeypatch.delenv("SLURM_CPUS_ON_NODE", raising=False)
+    unconstrained = available_cores()
+    monkeypatch.setenv("SLURM_CPUS_ON_NODE", "1")
+    assert available_cores() == 1
+    monkeypatch.setenv("SLURM_CPUS_PER_TASK", "1")
+    monkeypatch.setenv("SLURM_CPUS_ON_NODE", "64")
+    assert available_cores() == 1
+    monkeypatch.delenv("SLURM_CPUS_PER_TASK")
+    assert available_cores() == unconstrained  # never more than the affinity mask allows

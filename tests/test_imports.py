@@ -1,0 +1,55 @@
+"""Import-time weight and side effects (docs/architecture.md): what a light command imports
+must not load the simulator or the planners, and importing or using the planning and
+domain modules changes no process-wide setting.  Each check runs in a fresh interpreter."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+HEAVY = ("ompl", "pybullet")
+
+
+def loaded_after(code: str) -> dict:
+    probe = (f"import sys, json\n{code}\n"
+             "print(json.dumps({m: m in sys.modules for m in "
+             "('ompl', 'pybullet', 'matplotlib.pyplot', 'pipeline.domains.grasp_arm')}))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                         check=True).stdout
+    return json.loads(out.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("module", ["box_core", "pipeline.store", "pipeline.configs",
+                                    "pipeline.planning", "pipeline.domains",
+                                    "pipeline.domains.planar"])
+def test_light_modules_load_neither_ompl_nor_pybullet(module):
+    loaded = loaded_after(f"import {module}")
+    assert not any(loaded[m] for m in HEAVY), loaded
+
+
+def test_registering_the_pipeline_configs_loads_no_domain():
+    loaded = loaded_after("from pipeline.configs import register_configs; register_configs()")
+    assert not any(loaded[m] for m in (*HEAVY, "pipeline.domains.grasp_arm")), loaded
+
+
+def test_planning_leaves_ompl_logging_and_matplotlib_as_it_found_them(tmp_path):
+    code = """
+import json, sys
+from ompl import util as ou
+ou.setLogLevel(ou.LogLevel.LOG_WARN)
+from pipeline.domains import load_domain
+d = load_domain("planar")
+spec = d.sample_instance(1)
+raw = d.raw_plan(spec, seed=1)
+d.render(spec, raw.plan, sys.argv[1], constraint=raw.constraint)
+print(json.dumps([str(ou.getLogLevel()), "matplotlib.pyplot" in sys.modules,
+                  raw.plan.feasible]))
+"""
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "p.png")],
+                         capture_output=True, text=True, check=True)
+    level, pyplot, feasible = json.loads(out.stdout.strip().splitlines()[-1])
+    assert level.endswith("LOG_WARN") and not pyplot and feasible
+    assert "Error" not in out.stderr and "Info" not in out.stderr, out.stderr

@@ -1,0 +1,139 @@
+"""A store in object storage: a real S3-compatible server process (moto's standalone
+``moto_server``) on 127.0.0.1, configured the way AWS users expect (environment variables)."""
+
+import json
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import time
+
+import numpy as np
+import pytest
+import zarr
+from typer.testing import CliRunner
+
+from tests import pipeline_runs as pr
+
+BUCKET = "box-test"
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def s3(tmp_path_factory):
+    """The server's environment (AWS_ENDPOINT_URL, credentials) with a fresh bucket."""
+    server = shutil.which("moto_server")
+    if server is None:
+        pytest.skip('moto_server is not installed (pip install -e ".[test]")')
+    pytest.importorskip("s3fs", reason='s3fs is not installed (pip install -e ".[test]")')
+    port = _free_port()
+    proc = subprocess.Popen([server, "-H", "127.0.0.1", "-p", str(port)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    env = {"AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}", "AWS_ACCESS_KEY_ID": "testing",
+           "AWS_SECRET_ACCESS_KEY": "testing", "AWS_DEFAULT_REGION": "us-east-1"}
+    saved = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)  # for this process's readers (zarr, box status, box export)
+    try:
+        while True:
+            assert proc.poll() is None, "moto_server exited"
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                break
+            except OSError:
+                time.sleep(0.1)
+        import s3fs
+
+        s3fs.S3FileSystem(endpoint_url=env["AWS_ENDPOINT_URL"]).mkdir(BUCKET)
+        yield env
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _matrix(url: str) -> dict:
+    from pipeline.location import locate
+
+    g = zarr.open_group(store=locate(url).zarr_store(read_only=True), mode="r",
+                        use_consolidated=False)
+    return {name: g[f"scores/{name}"][...] for name in ("score", "feasible", "status", "checks",
+                                                         "length", "step")}
+
+
+def _done(url: str) -> int:
+    try:
+        from pipeline.location import locate
+
+        g = zarr.open_group(store=locate(url).zarr_store(read_only=True), mode="r",
+                            use_consolidated=False)
+        return int(g["scores/done"][...].sum())
+    except Exception:  # noqa: BLE001 (not created yet)
+        return 0
+
+
+def test_full_run_status_and_export_on_s3(s3, made, tmp_path):
+    url = f"s3://{BUCKET}/runs/full.zarr"
+    res = pr.run(url, "stage=generate", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr + res.stdout
+    assert pr.same_matrix(pr.matrix(made[0]), _matrix(url))  # bitwise the local store's D
+    assert {p.name for p in tmp_path.iterdir()} <= {"outputs"}  # Hydra's; no "s3:" folder
+
+    from pipeline.cli import app
+
+    runner = CliRunner()
+    status = runner.invoke(app, ["status", url, "--json"])
+    assert status.exit_code == 0, status.output
+    doc = json.loads(status.output)
+    assert doc["stages"]["scores"]["done"] == 24 * 15 and not doc["damaged"]
+    out = tmp_path / "d.npz"
+    exported = runner.invoke(app, ["export", url, "-o", str(out)])
+    assert exported.exit_code == 0, exported.output
+    with np.load(out) as data:
+        np.testing.assert_array_equal(data["feasible"], pr.matrix(made[0])["feasible"])
+    again = pr.run(url, "stage=generate", cwd=tmp_path)
+    assert again.returncode == 0 and "scores: already complete" in again.stdout
+
+
+def test_kill_9_on_s3_then_resume_is_bitwise_identical(s3, made, tmp_path):
+    url = f"s3://{BUCKET}/runs/killed.zarr"
+    proc = pr.start(url, "stage=generate", cwd=tmp_path)
+    while _done(url) == 0:
+        assert proc.poll() is None, proc.stdout.read()
+        time.sleep(0.1)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait(timeout=60)
+    done = _done(url)
+    assert 0 < done < 24 * 15, "the kill came too late to test resuming"
+    res = pr.run(url, "stage=generate", cwd=tmp_path)  # the dead run's lease is taken over
+    assert res.returncode == 0, res.stderr + res.stdout
+    assert f"{done} of {24 * 15} entries already done" in res.stdout
+    assert pr.same_matrix(pr.matrix(made[0]), _matrix(url))
+
+
+def test_a_live_lease_refuses_a_second_run(s3, tmp_path):
+    from pipeline.store import StoreLock
+
+    url = f"s3://{BUCKET}/runs/leased.zarr"
+    with StoreLock(url):
+        res = pr.run(url, "stage=instances", cwd=tmp_path)
+    assert res.returncode == 2 and "in use by a running pipeline" in res.stderr
+    assert "heartbeat" in res.stderr
+    res = pr.run(url, "stage=instances", cwd=tmp_path)  # released: free again
+    assert res.returncode == 0, res.stderr
+
+
+def test_unknown_schemes_are_refused_in_one_line(tmp_path):
+    res = pr.run("nosuch://b/x.zarr", "stage=instances", cwd=tmp_path)
+    assert res.returncode == 2
+    assert "unknown scheme 'nosuch'" in res.stderr and "Traceback" not in res.stderr
+    assert {p.name for p in tmp_path.iterdir()} <= {"outputs"}
