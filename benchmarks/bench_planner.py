@@ -15,8 +15,11 @@ does), and π on every (instance, constraint).  Per domain: median ms per feasib
 mean ms per entry (targets: <= 50 ms grasp_base, <= 200 ms pick_place), median seconds per
 RAWPLANNER solve, and the ratio of the two medians (RAWPLANNER / feasible π).
 
+Last, the collision checkers side by side (benchmarks/bench_collision.py): the same entries
+with planner.collision=spheres and =exact, their ratios and feasibility agreement.
+
 Run: python benchmarks/bench_planner.py [--instances 20] [--no-trajopt]
-         [--mobile-instances 20] [--only grasp_arm|grasp_base|pick_place]
+         [--mobile-instances 20] [--only grasp_arm|grasp_base|pick_place] [--no-collision]
 """
 
 from __future__ import annotations
@@ -52,7 +55,11 @@ def main() -> None:
     ap.add_argument("--no-trajopt", action="store_true", help="skip the TrajOpt comparison")
     ap.add_argument("--mobile-instances", type=int, default=20)
     ap.add_argument("--only", choices=("grasp_arm", *MOBILE_TARGETS_MS))
+    ap.add_argument("--no-collision", action="store_true",
+                    help="skip the spheres-against-exact checker comparison")
     args = ap.parse_args()
+    if not args.no_collision:
+        compare_checkers(args)
     if args.only != "grasp_arm":
         for name in MOBILE_TARGETS_MS if args.only is None else (args.only,):
             bench_mobile(name, args.mobile_instances)
@@ -118,6 +125,15 @@ def bench_mobile(name: str, n: int) -> None:
     print("  outcomes: " + ", ".join(f"{k} {v} ({v / len(results):.0%})"
                                      for k, v in steps.most_common()))
     print()
+
+
+def compare_checkers(args) -> None:
+    """planner.collision=spheres against =exact on the same entries, per domain."""
+    import bench_collision
+
+    for name in (args.only,) if args.only else tuple(bench_collision.TARGETS):
+        bench_collision.run(name, args.instances if name == "grasp_arm"
+                            else args.mobile_instances)
 
 
 def run_entries(domain, instances):

@@ -177,6 +177,8 @@ def identity(cfg) -> dict:
         for part in key.split("."):
             node = node[part]
         out[key] = node
+    # the collision checker changes the cost of D, never its contents (pipeline.sim.fast_check)
+    out["planner"] = {k: v for k, v in out["planner"].items() if k != "collision"}
     return out
 
 

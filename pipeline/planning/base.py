@@ -16,6 +16,7 @@ wall-clock cap is only a safety net and is reported as its own status when it fi
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable
@@ -84,8 +85,10 @@ def interpolate(a: np.ndarray, b: np.ndarray, resolution: float) -> np.ndarray:
     return a + t[:, None] * (b - a)
 
 
+@functools.lru_cache(maxsize=4096)
 def check_order(k: int) -> np.ndarray:
-    """End point first, then the rest coarse to fine: collisions show up after few checks."""
+    """End point first, then the rest coarse to fine: collisions show up after few checks.
+    (Cached, read-only: edges of the same length share it.)"""
     order = [k - 1]
     seen = {k - 1}
     step = k
@@ -95,7 +98,9 @@ def check_order(k: int) -> np.ndarray:
             if i not in seen:
                 seen.add(i)
                 order.append(i)
-    return np.asarray(order)
+    out = np.asarray(order)
+    out.flags.writeable = False
+    return out
 
 
 class Budget:

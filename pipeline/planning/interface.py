@@ -31,7 +31,13 @@ class Planner(abc.ABC):
         self.settings = settings
 
     def budget(self, robot: RobotModel) -> Budget:
-        """A check budget for one call, to share between the motions of a multi-leg call."""
+        """A check budget for one call, to share between the motions of a multi-leg call;
+        make it once the scene is set for the call (``planner.collision=spheres`` reads
+        the world now)."""
+        if getattr(self.settings, "collision", "exact") == "spheres":
+            from pipeline.sim.fast_check import certified
+
+            robot = certified(robot)
         return Budget(robot, self.settings.max_checks, self.settings.wall_cap_s)
 
     @abc.abstractmethod

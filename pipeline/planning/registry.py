@@ -17,6 +17,10 @@ PLANNERS = {
 }
 
 
+#: collision checking: sphere pre-check then pybullet, or pybullet everywhere
+COLLISION = ("spheres", "exact")
+
+
 @dataclass
 class PlannerSettings:
     """Settings of one planning call (schema of ``conf/planner/*.yaml``; a store's identity
@@ -26,6 +30,10 @@ class PlannerSettings:
     planner; ``range`` and ``shortcut_attempts`` to ``rrt_connect``; the ``trajopt_*``
     keys to ``trajopt`` (checked by it, :class:`pipeline.planning.trajopt.TrajOpt`).
     ``noop`` plans nothing: the pipeline records "skipped" for every score entry.
+    ``collision``: ``spheres`` gives a planner robots whose checks run a sphere pre-check and
+    ask pybullet only what it cannot clear (:mod:`pipeline.sim.fast_check`; the same
+    answers and counts as ``exact``, pybullet on every configuration).  It changes the cost
+    of a score matrix, never its contents, so it is left out of a store's identity.
     """
 
     name: str = "rrt_connect"
@@ -34,6 +42,7 @@ class PlannerSettings:
     resolution: float = 0.01
     range: float = 0.0
     shortcut_attempts: int = 40
+    collision: str = "spheres"
     trajopt_waypoints: int = 20
     trajopt_margin: float = 0.02  # metres
     trajopt_penalty: float = 10.0  # initial hinge coefficient
@@ -50,6 +59,9 @@ class PlannerSettings:
             raise ValueError(f"planner.wall_cap_s must be positive, got {self.wall_cap_s}")
         if not self.resolution > 0:
             raise ValueError(f"planner.resolution must be positive, got {self.resolution}")
+        if self.collision not in COLLISION:
+            raise ValueError(f"planner.collision must be one of {', '.join(COLLISION)}, got "
+                             f"{self.collision!r}")
         if self.range < 0 or self.shortcut_attempts < 0:
             raise ValueError("planner.range and planner.shortcut_attempts must be >= 0")
 

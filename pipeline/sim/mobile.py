@@ -138,6 +138,20 @@ class MobilePanda:
     def shoulder(self) -> np.ndarray:
         return self.arm.shoulder
 
+    # -- what the sphere pre-check (pipeline.sim.fast_check) reads -------------------------
+    hand_links = HAND_LINKS
+
+    def base_frame(self) -> np.ndarray:
+        return base_transform(self.pose)
+
+    @property
+    def held_in_tcp(self) -> np.ndarray:
+        return self._tcp_obj
+
+    @property
+    def held_in_base(self) -> np.ndarray:
+        return self._base_obj
+
     def ik(self, position, orientation, rng: np.random.Generator, restarts: int):
         """Panda.ik with this robot's check (platform and held object included)."""
         return self.arm.ik(position, orientation, rng, restarts, collides=self.arm_collides)
@@ -180,9 +194,12 @@ class MobileBase(Robot):
         self.robot, self.psi_scale = robot, psi_scale
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
 
+    def collides(self, s) -> bool:
+        return self.robot.base_collides((s[0], s[1], s[2] / self.psi_scale))
+
     def check(self, states: np.ndarray) -> tuple[bool, int]:
         for k, s in enumerate(states):
-            if self.robot.base_collides((s[0], s[1], s[2] / self.psi_scale)):
+            if self.collides(s):
                 return False, k + 1
         return True, len(states)
 

@@ -68,6 +68,7 @@ class Panda(Robot):
             pairs.add(tuple(sorted((pt[3], pt[4]))))
         # the hand and both fingers touch each other whatever the arm does
         pairs |= {(8, 9), (8, 10), (9, 10), (7, 9), (7, 10), (6, 8)}
+        self.ignored_pairs = frozenset(pairs)  # the sphere pre-check skips them too
         for a, b in pairs:
             pb.setCollisionFilterPair(self.body, self.body, a, b, 0, physicsClientId=c)
 

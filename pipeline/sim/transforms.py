@@ -3,6 +3,8 @@ quaternions in pybullet's (x, y, z, w) order, homogeneous 4 × 4 poses."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -22,21 +24,24 @@ def quaternion(R: np.ndarray) -> np.ndarray:
     Shepperd's method: solve for the largest of |w|, |x|, |y|, |z| first and get the
     others from off-diagonal sums, so rotations by π (w = 0) keep their axis's signs.
     """
-    t = np.trace(R)
-    k = int(np.argmax([t, R[0, 0], R[1, 1], R[2, 2]]))
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = np.asarray(R, float).tolist()  # the
+    # same operations in the same order as on numpy scalars, at half the cost
+    t = r00 + r11 + r22
+    diag = (t, r00, r11, r22)
+    k = diag.index(max(diag))
     if k == 0:
-        w = np.sqrt(1 + t) / 2
-        q = [(R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w),
-             (R[1, 0] - R[0, 1]) / (4 * w), w]
+        w = math.sqrt(1 + t) / 2
+        q = [(r21 - r12) / (4 * w), (r02 - r20) / (4 * w), (r10 - r01) / (4 * w), w]
     else:
+        M = ((r00, r01, r02), (r10, r11, r12), (r20, r21, r22))
         i = k - 1
         j, m = (i + 1) % 3, (i + 2) % 3
-        v = np.sqrt(max(0.0, 1 + 2 * R[i, i] - t)) / 2
-        q = [0.0, 0.0, 0.0, (R[m, j] - R[j, m]) / (4 * v)]
+        v = math.sqrt(max(0.0, 1 + 2 * M[i][i] - t)) / 2
+        q = [0.0, 0.0, 0.0, (M[m][j] - M[j][m]) / (4 * v)]
         q[i] = v
-        q[j] = (R[j, i] + R[i, j]) / (4 * v)
-        q[m] = (R[m, i] + R[i, m]) / (4 * v)
-    q = np.asarray(q)
+        q[j] = (M[j][i] + M[i][j]) / (4 * v)
+        q[m] = (M[m][i] + M[i][m]) / (4 * v)
+    q = np.array(q)
     return q / np.linalg.norm(q)
 
 

@@ -1,0 +1,316 @@
+"""The sphere-certified checker (planner.collision=spheres): its geometry covers the robot,
+it answers as the exact checker does, and the paths it lets through are free."""
+
+import numpy as np
+import pybullet as pb
+import pytest
+from scipy.spatial import Delaunay
+
+from pipeline import configs
+from pipeline.domains import load_domain
+from pipeline.planning import PlannerSettings
+from pipeline.planning.base import check_order, interpolate, path_is_free
+from pipeline.sim import fast_check as FC
+from pipeline.sim import panda as P
+from pipeline.sim import spheres as S
+from pipeline.sim.mobile import MobileArm, MobileBase
+from pipeline.sim.world import add_box, connect
+
+
+@pytest.fixture(scope="module")
+def lone_arm():
+    client = connect()
+    arm = P.Panda(client, (0.1, -0.2, 0.3))
+    arm.set_base((0.1, -0.2, 0.3), 0.7)
+    yield client, arm
+    pb.disconnect(physicsClientId=client)
+
+
+def _domain(name, collision, **config):
+    return load_domain(name, planner={"name": "rrt_connect", "collision": collision}, **config)
+
+
+@pytest.fixture(scope="module")
+def grasp_arm():
+    return {c: _domain("grasp_arm", c) for c in ("spheres", "exact")}
+
+
+def _edges(rng, lower, upper, count, resolution):
+    """Random edges as the planner checks them: interpolated, in check order."""
+    for _ in range(count):
+        a, b = rng.uniform(lower, upper), rng.uniform(lower, upper)
+        b = a + (b - a) * rng.uniform(0.05, 1.0)
+        states = interpolate(a, b, resolution)
+        yield states[check_order(len(states))]
+
+
+# -- geometry --------------------------------------------------------------------------------
+def test_forward_kinematics_matches_pybullet(lone_arm):
+    client, arm = lone_arm
+    Q = np.random.default_rng(0).uniform(P.LOWER, P.UPPER, (20, 7))
+    frames = S.arm_frames(Q, FC.base_link_frame(client, arm.body))
+    fast = FC._arm_frames_fn(FC.base_link_frame(client, arm.body))(Q)
+    np.testing.assert_allclose(fast, frames, atol=1e-12)
+    for link in (0, 3, 6, 8, 9, 10, 11):
+        T = S.link_frame(frames, link)
+        for n, q in enumerate(Q):
+            arm.set(q)
+            state = pb.getLinkState(arm.body, link, computeForwardKinematics=True,
+                                    physicsClientId=client)
+            R = np.asarray(pb.getMatrixFromQuaternion(state[5])).reshape(3, 3)
+            np.testing.assert_allclose(T[n, :3, 3], state[4], atol=1e-6)
+            np.testing.assert_allclose(T[n, :3, :3], R, atol=1e-6)
+
+
+def test_spheres_hold_every_point_of_every_collision_hull():
+    """Points drawn inside each link's convex hull (pybullet's collision shape) lie in one
+    of the link's spheres (margin 0)."""
+    model = S.panda_spheres(margin=0.0)
+    offsets = S.fixed_offsets()
+    rng = np.random.default_rng(1)
+    for link, (path, origin) in S.panda_chain().meshes.items():
+        T = offsets[link] @ origin
+        verts = S._mesh_vertices(path) @ T[:3, :3].T + T[:3, 3]
+        lo, hi = verts.min(axis=0), verts.max(axis=0)
+        cloud = rng.uniform(lo, hi, (20000, 3))
+        inside = cloud[Delaunay(verts).find_simplex(cloud) >= 0]
+        points = np.concatenate([verts, inside])
+        m = model.links == link
+        d = np.linalg.norm(points[:, None] - model.centres[m][None], axis=2) - model.radii[m]
+        assert d.min(axis=1).max() <= 1e-9, f"link {link}"
+
+
+def test_every_pybullet_contact_is_flagged_by_the_pre_check(grasp_arm):
+    """Conservativeness: on an instance with obstacles and the other arm, every
+    configuration with a pybullet contact (with a box, the other arm or itself) is one the
+    pre-check cannot clear."""
+    domain = grasp_arm["exact"]
+    rng = np.random.default_rng(3)
+    contacts = 0
+    for seed in (0, 1):
+        scene = domain.scene(domain.check_instance(domain.sample_instance(seed)))
+        arm = scene.arms[seed % 2]
+        checker = FC.arm_checker(scene.client_id, arm.body, arm.ignored_pairs, arm.collides_at)
+        assert checker.certified
+        Q = np.concatenate([rng.uniform(P.LOWER, P.UPPER, (300, 7)),
+                            np.clip(P.HOME + rng.normal(0, 0.7, (300, 7)), P.LOWER, P.UPPER)])
+        flagged = checker.uncertain(Q)
+        colliding = np.array([arm.collides_at(q) for q in Q])
+        arm.set(P.HOME)
+        contacts += colliding.sum()
+        assert not np.any(colliding & ~flagged)
+        assert flagged.mean() < 0.6  # and it clears a good share of the rest
+    assert contacts > 50
+
+
+# -- same answers as the exact checker -------------------------------------------------------
+def _same_answers(checker, exact, edges):
+    for states in edges:
+        assert checker(states) == exact(states)
+
+
+def test_arm_checker_answers_and_counts_as_the_exact_one(grasp_arm):
+    domain = grasp_arm["exact"]
+    scene = domain.scene(domain.check_instance(domain.sample_instance(4)))
+    arm = scene.arms[0]
+    try:
+        model = FC.certified(arm)
+        assert isinstance(model, FC.CertifiedRobot) and model.checker.certified
+        _same_answers(model.check, arm.check,
+                      _edges(np.random.default_rng(5), P.LOWER, P.UPPER, 40, 0.01))
+        assert model.checker.stats["exact"] < model.checker.stats["rows"] / 5
+    finally:
+        arm.set(P.HOME)
+
+
+@pytest.fixture(scope="module")
+def carrying():
+    """pick_place with the rod held in a carry configuration, at the start."""
+    domain = _domain("pick_place", "exact")
+    inst = domain.check_instance(domain.sample_instance(1))
+    domain.scene(inst)
+    for g in domain.grasps:
+        carry, _ = domain.carry(inst, g)
+        if carry is not None:
+            domain.hold(inst, g, carry)
+            return domain, domain.robot
+    pytest.fail("no carry configuration")
+
+
+def test_arm_checker_with_a_held_rod_answers_as_the_exact_one(carrying):
+    domain, robot = carrying
+    model = FC.certified(MobileArm(robot))
+    assert isinstance(model, FC.CertifiedRobot) and model.checker.certified
+    rng = np.random.default_rng(6)
+    q0 = FC.arm_state(robot.client, robot.body)
+    lo, hi = np.maximum(P.LOWER, q0 - 1.0), np.minimum(P.UPPER, q0 + 1.0)
+    _same_answers(model.check, robot.arm_check, _edges(rng, lo, hi, 25, 0.01))
+    robot.set_arm(q0)
+
+
+def test_base_checker_with_a_held_rod_answers_as_the_exact_one(carrying):
+    domain, robot = carrying
+    s = domain.config.psi_scale
+    lo, hi = np.array([-2.9, -1.5, -np.pi * s]), np.array([2.9, 1.5, np.pi * s])
+    exact = MobileBase(robot, s, lo, hi)
+    model = FC.certified(exact)
+    assert isinstance(model, FC.CertifiedRobot) and model.checker.certified
+    _same_answers(model.check, exact.check, _edges(np.random.default_rng(7), lo, hi, 40, 0.04))
+    assert model.checker.stats["exact"] < model.checker.stats["rows"] / 5
+
+
+def test_a_scene_it_cannot_model_is_checked_exactly(lone_arm):
+    client, arm = lone_arm
+    sphere = pb.createMultiBody(0, pb.createCollisionShape(pb.GEOM_SPHERE, radius=0.1,
+                                                           physicsClientId=client),
+                                basePosition=[0.6, -0.2, 0.6], physicsClientId=client)
+    try:
+        model = FC.certified(arm)
+        assert not model.checker.certified
+        _same_answers(model.check, arm.check,
+                      _edges(np.random.default_rng(8), P.LOWER, P.UPPER, 10, 0.05))
+    finally:
+        pb.removeBody(sphere, physicsClientId=client)
+
+
+def test_unknown_robots_are_left_alone():
+    class Disc:
+        lower, upper = np.zeros(2), np.ones(2)
+
+        def check(self, states):
+            return True, len(states)
+
+    disc = Disc()
+    assert FC.certified(disc) is disc
+
+
+# -- planning with it ------------------------------------------------------------------------
+def _same_plan(a, b):
+    assert (a.status, a.step, a.checks) == (b.status, b.step, b.checks)
+    assert (a.path is None) == (b.path is None)
+    if a.path is not None:
+        np.testing.assert_array_equal(a.path, b.path)
+
+
+def test_grasp_arm_entries_equal_exact_ones_and_paths_recheck_free(grasp_arm):
+    fast, exact = grasp_arm["spheres"], grasp_arm["exact"]
+    spec = fast.sample_instance(7)
+    feasible = 0
+    for j in range(0, 162, 3):
+        a, b = fast.plan(spec, j, seed=j), exact.plan(spec, j, seed=j)
+        _same_plan(a, b)
+        if a.feasible:
+            feasible += 1
+            scene = exact.build_scene(spec)
+            try:
+                arm = scene.arms[fast.constraint(j).arm]
+                assert path_is_free(a.path, arm.check, 0.01)
+            finally:
+                scene.close()
+    assert feasible >= 3
+
+
+@pytest.mark.parametrize("name", ["grasp_base", "pick_place"])
+def test_mobile_entries_equal_exact_ones_and_paths_recheck_free(name):
+    fast, exact = _domain(name, "spheres"), _domain(name, "exact")
+    spec = fast.sample_instance(3)
+    raw = fast.raw_plan(spec, seed=11)
+    assert raw.plan.feasible
+    specs = [spec] * 4 + [fast.sample_instance(4)]
+    feasible = 0
+    for k, s in enumerate(specs):
+        a, b = fast.plan(s, raw.constraint, seed=k), exact.plan(s, raw.constraint, seed=k)
+        _same_plan(a, b)
+        if not a.feasible:
+            continue
+        feasible += 1
+        if name == "pick_place":
+            assert all(fast.recheck(s, raw.constraint, a, resolution=0.005).values())
+        else:
+            scene = exact.build_scene(s)
+            try:
+                scene.robot.set_base(fast.constraint(raw.constraint).pose)
+                assert path_is_free(a.path, scene.robot.arm_check, 0.01)
+            finally:
+                scene.close()
+    assert feasible >= 1
+
+
+# -- the setting -----------------------------------------------------------------------------
+def test_the_setting_is_validated_and_not_part_of_a_stores_identity():
+    assert PlannerSettings().collision == "spheres"
+    with pytest.raises(ValueError, match="planner.collision"):
+        PlannerSettings(collision="fast")
+    cfg = {"domain": {"name": "planar"}, "seed": 0, "instances": {"n": 2},
+           "constraints": {"m": 2}, "store": {"block_instances": 1, "block_constraints": 1}}
+    a = configs.identity({**cfg, "planner": {"name": "rrt_connect", "collision": "spheres"}})
+    b = configs.identity({**cfg, "planner": {"name": "rrt_connect", "collision": "exact"}})
+    c = configs.identity({**cfg, "planner": {"name": "rrt_connect"}})
+    assert a == b == c
+
+
+def test_boxes_touching_the_platform_make_a_mobile_checker_exact():
+    from pipeline.domains.mobile_world import MobileScene
+
+    scene = MobileScene([])
+    try:
+        arm = MobileArm(scene.robot)
+        assert FC.certified(arm).checker.certified
+        add_box(scene.client_id, (0.2, 0.2, 0.2), (0.3, 0.0, 0.1))  # into the platform
+        assert not FC.certified(arm).checker.certified
+    finally:
+        scene.close()
+
+
+def _numpy_quaternion(R):
+    """The quaternion of the previous revision (numpy scalars), kept as the reference."""
+    t = np.trace(R)
+    k = int(np.argmax([t, R[0, 0], R[1, 1], R[2, 2]]))
+    if k == 0:
+        w = np.sqrt(1 + t) / 2
+        q = [(R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w),
+             (R[1, 0] - R[0, 1]) / (4 * w), w]
+    else:
+        i = k - 1
+        j, m = (i + 1) % 3, (i + 2) % 3
+        v = np.sqrt(max(0.0, 1 + 2 * R[i, i] - t)) / 2
+        q = [0.0, 0.0, 0.0, (R[m, j] - R[j, m]) / (4 * v)]
+        q[i] = v
+        q[j] = (R[j, i] + R[i, j]) / (4 * v)
+        q[m] = (R[m, i] + R[i, m]) / (4 * v)
+    q = np.asarray(q)
+    return q / np.linalg.norm(q)
+
+
+def test_quaternions_are_bitwise_those_of_the_previous_revision():
+    """Stored entries replay only if pybullet gets the very same poses."""
+    from scipy.spatial.transform import Rotation
+
+    from pipeline.sim.world import quaternion, rot_z
+
+    rng = np.random.default_rng(9)
+    mats = list(Rotation.random(3000, random_state=10).as_matrix())
+    mats += [rot_z(a) for a in rng.uniform(-4, 4, 3000)]
+    mats += [np.diag(d) for d in ([1.0, -1, -1], [-1.0, 1, -1], [-1.0, -1, 1], [1.0, 1, 1])]
+    for R in mats:
+        np.testing.assert_array_equal(quaternion(R), _numpy_quaternion(R))
+
+
+def test_the_shipped_wrist_table_agrees_with_pybullet(lone_arm):
+    """Cells of the table in the package, recomputed: a free cell must be free."""
+    from pipeline.sim import wrist
+
+    _, arm = lone_arm
+    table = FC.wrist_table(arm.ignored_pairs)
+    if not (table.state != 0).all():
+        pytest.skip("the shipped wrist table does not match this pybullet/model (its stamp "
+                    "differs); cells are computed lazily instead")
+    upper = table.lower + wrist.STEP * (np.array(table.state.shape) - 1)
+    fresh = wrist.WristTable(table.pairs, table.lower, upper, table.bound)
+    fresh.state[:] = 0
+    rng = np.random.default_rng(12)
+    cells = rng.integers(0, table.state.shape, (300, 2))
+    for i, k in cells:
+        free = fresh._free(table.lower + wrist.STEP * np.array([i, k]))
+        assert (table.state[i, k] == 1) == free
+    fresh.close()
