@@ -26,7 +26,7 @@ from pipeline.planning.base import CAPABILITIES, capabilities
 from pipeline.planning.registry import planner_class
 
 PAIRS = [(d, p) for d in DOMAINS for p in PLANNERS]
-ENTRIES = 3  # planning calls per check: pick_place calls cost ~0.1-0.4 s each
+ENTRIES = 2  # planning calls per check: pick_place and trajopt calls cost ~0.1-1 s each
 
 
 def make(domain: str, planner: str):
