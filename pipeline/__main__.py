@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+import os
 import sys
 
-import hydra
-from rich.console import Console
-from rich.markup import escape
+# Global settings belong to entry points.  Importing distributed resets its logger to INFO
+# unless this is set before it loads; workers started by this process inherit it.
+os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")
 
-from pipeline.configs import CONF_DIR, register_configs
+import hydra  # noqa: E402
+from rich.console import Console  # noqa: E402
+from rich.markup import escape  # noqa: E402
+
+from pipeline.configs import CONF_DIR, register_configs  # noqa: E402
 
 register_configs()
 

@@ -24,7 +24,7 @@ import numpy as np
 from omegaconf import OmegaConf
 from rich.console import Console
 
-from pipeline import configs, worker
+from pipeline import configs, validation, worker
 from pipeline.configs import Stage
 from pipeline.domains import ConstraintSet, load_domain
 from pipeline.execution import Task, connect_first, dask_client, run_tasks
@@ -77,7 +77,7 @@ class Run:
         self.cfg = cfg
         self.console = console
         self.plain = OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)
-        self._check_values()
+        validation.check_values(self.plain)  # also when stages run without the entry point
         planner = configs.planner_settings(self.plain["planner"])
         name = self.plain["domain"]["name"]
         overrides = {k: v for k, v in self.plain["domain"].items() if k != "name"}
@@ -97,20 +97,6 @@ class Run:
         self._todo: dict[str, str | None] = {}
         self._stack = contextlib.ExitStack()
         self._client = None
-
-    def _check_values(self) -> None:
-        c = self.cfg
-        if c.instances.n < 3:
-            raise ValueError(f"instances.n must be >= 3 (leave-one-out needs them), got "
-                             f"{c.instances.n}")
-        if c.constraints.m < 1:
-            raise ValueError(f"constraints.m must be >= 1, got {c.constraints.m}")
-        if c.store.block_instances < 1 or c.store.block_constraints < 1:
-            raise ValueError("store.block_instances and store.block_constraints must be >= 1")
-        if c.seed < 0:
-            raise ValueError(f"seed must be >= 0, got {c.seed}")
-        if c.cluster.retries < 0:
-            raise ValueError(f"cluster.retries must be >= 0, got {c.cluster.retries}")
 
     # -- resources -------------------------------------------------------------------------
     def open_for_reading(self) -> ScoreStore | None:

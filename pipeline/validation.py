@@ -94,15 +94,19 @@ def check_values(c: dict) -> None:
     _at_least(c, "constraints.m", 1)
     _at_least(c, "store.block_instances", 1)
     _at_least(c, "store.block_constraints", 1)
-    workers = c["cluster"]["n_workers"]
-    if workers is not None and workers < 1:
-        raise ConfigError(f"cluster.n_workers must be >= 1, or null for one per core, got "
-                          f"{workers}")
-    _at_least(c, "cluster.retries", 0)
+    _check_cluster(c)
     _check_planner_and_domain(c)
     _check_evaluate(c)
     _check_report(c)
     _check_solve(c)
+
+
+def _check_cluster(c: dict) -> None:
+    """The ``cluster.*`` keys, by the cluster's own rules (one place for them)."""
+    from pipeline.cluster.checks import check_config
+    from pipeline.configs import ClusterConfig
+
+    check_config(OmegaConf.merge(OmegaConf.structured(ClusterConfig), c["cluster"]))
 
 
 def _check_planner_and_domain(c: dict) -> None:

@@ -4,13 +4,9 @@
 worker left; ``worker_side`` is what travels to the workers (tuning plugin, probe).
 """
 
-import os
-
-os.environ.setdefault("DASK_LOGGING__DISTRIBUTED", "warning")  # before distributed loads
-
-from pipeline.cluster.errors import ClusterError, ClusterFailed, TaskFailed  # noqa: E402
-from pipeline.cluster.session import connect, connect_first, tune_workers  # noqa: E402
-from pipeline.cluster.slurm import available_cores  # noqa: E402
+from pipeline.cluster.errors import ClusterError, ClusterFailed, TaskFailed
+from pipeline.cluster.session import connect, connect_first, tune_workers
+from pipeline.cluster.slurm import available_cores
 
 __all__ = ["ClusterError", "ClusterFailed", "TaskFailed", "available_cores", "connect",
            "connect_first", "tune_workers"]

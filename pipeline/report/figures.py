@@ -9,15 +9,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import matplotlib.ticker
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import matplotlib.ticker  # noqa: E402
-import numpy as np  # noqa: E402
-
-from box_core import curve_summary  # noqa: E402
-from box_core.stats import mean_ci_columns  # noqa: E402
+from box_core import curve_summary
+from box_core.stats import mean_ci_columns
 
 #: How selectors are named and coloured in every figure and table.
 LABELS = {"box": "BOX", "eips": "EIPS", "static": "STATIC", "rand": "RAND", "doo": "DOO",
@@ -46,12 +43,14 @@ def save(fig, out_dir: Path, stem: str, formats) -> dict[str, Path]:
         path = out_dir / f"{stem}.{fmt}"
         fig.savefig(path, dpi=150 if fmt == "png" else None, bbox_inches="tight")
         paths[fmt] = path
-    plt.close(fig)
     return paths
 
 
 def _panels(count: int, width: float = 5.0, height: float = 4.0):
-    fig, axes = plt.subplots(1, count, figsize=(width * count, height), squeeze=False)
+    """A figure of ``count`` panels side by side.  A plain Figure (no pyplot): no backend is
+    chosen and no global figure registry is touched, so importing this module sets nothing."""
+    fig = Figure(figsize=(width * count, height))
+    axes = fig.subplots(1, count, squeeze=False)
     return fig, axes[0]
 
 
