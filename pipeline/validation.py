@@ -103,10 +103,14 @@ def check_values(c: dict) -> None:
 
 def _check_cluster(c: dict) -> None:
     """The ``cluster.*`` keys, by the cluster's own rules (one place for them)."""
+    from pipeline.cluster import ClusterError
     from pipeline.cluster.checks import check_config
     from pipeline.configs import ClusterConfig
 
-    check_config(OmegaConf.merge(OmegaConf.structured(ClusterConfig), c["cluster"]))
+    try:
+        check_config(OmegaConf.merge(OmegaConf.structured(ClusterConfig), c["cluster"]))
+    except ClusterError as exc:
+        raise ConfigError(str(exc)) from None
 
 
 def _check_planner_and_domain(c: dict) -> None:
