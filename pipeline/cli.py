@@ -65,9 +65,10 @@ def evaluate(
     feasibility mask, entries equal to the matrix minimum count as failures. An array named
     with --*-var must exist in FILE; a damaged file or pickled objects are refused (exit 2).
     """
+    forbidden = None
     try:
         if file.is_dir():
-            data = _store_matrix(file)
+            data, forbidden = _store_matrix(file)
         else:
             data = load_matrix(file, scores=scores_var, times=times_var,
                                feasible=feasible_var, features=features_var)
@@ -77,22 +78,27 @@ def evaluate(
     if not names:
         names = ["box", "static", "rand"] + (["doo"] if data.features is not None else [])
     _evaluate_matrix(data, file, names, k=k, seed=seed, c=c, failure_rule=failure_rule,
-                     overhead=overhead, as_json=as_json)
+                     overhead=overhead, as_json=as_json, forbidden=forbidden)
 
 
-def _store_matrix(path: Path) -> MatrixFile:
+def _store_matrix(path: Path) -> tuple[MatrixFile, np.ndarray | None]:
+    """The store's matrix, and the columns each row must not try: those extracted from its
+    own raw solution (hidden as ``stage=evaluate`` hides them by default)."""
     from pipeline.evaluation import load_matrix as store_matrix
+    from pipeline.evaluation import own_constraints
 
     store = ScoreStore.open(path)
     if store.stage_info("scores") is None:
         raise StoreError(f"{path}: the score matrix is not complete; finish it with "
                          "python -m pipeline stage=generate")
     scores, feasible, times, theta = store_matrix(store)
-    return MatrixFile(scores=scores, times=times, feasible=feasible, features=theta)
+    return (MatrixFile(scores=scores, times=times, feasible=feasible, features=theta),
+            own_constraints(store))
 
 
 def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, seed=0,
-                     c=1.96, failure_rule="magnitude", overhead=True, as_json=False) -> None:
+                     c=1.96, failure_rule="magnitude", overhead=True, as_json=False,
+                     forbidden=None) -> None:
     """Run the LOOCV on loaded ``data`` and print its summary (table or JSON)."""
     from pipeline.validation import available_memory, evaluation_bytes, memory_text
 
@@ -107,7 +113,7 @@ def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, 
         result = box_core.loocv(
             data.scores, times=data.times, feasible=data.feasible, features=data.features,
             selectors=names, k=k, seed=seed, params=params, failure_rule=failure_rule,
-            measure_overhead=overhead,
+            measure_overhead=overhead, forbidden=forbidden,
         )
     except ValueError as exc:
         _fail(f"{file}: {exc}")

@@ -176,9 +176,10 @@ def _check_solve(c: dict) -> None:
     s = c["solve"]
     _at_least(c, "solve.n", 1)
     names = _selectors("solve.selectors", s["selectors"], {*SELECTORS, RAWPLANNER})
-    if "oracle" in names:
-        raise ConfigError("solve.selectors: oracle needs the true scores of a new instance, "
-                          "which live solving does not have")
+    oracles = [n for n in names if n in ("oracle", "fastest")]
+    if oracles:
+        raise ConfigError(f"solve.selectors: {oracles[0]} needs the true scores of a new "
+                          "instance, which live solving does not have")
     budget = s["max_evaluations"]
     if budget is not None and budget < 1:
         raise ConfigError(f"solve.max_evaluations={budget}: must be >= 1, or null for m")
