@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import shutil
-
 import numpy as np
 
 import box_core
@@ -78,7 +76,7 @@ def evaluate(run) -> None:
         others[RAWPLANNER] = np.where(raw_ok, store.array("raw/time")[...], np.nan)
     summary = result.summary(others=others)
     store.forget_stage("evaluate")  # derived data: replaced as a whole
-    shutil.rmtree(store.path / "evaluation", ignore_errors=True)
+    store.remove("evaluation")  # any kind of store: local, file:// or s3://
     _write(store, result, others)
     # what the report states about leakage: how many rows had constraints of their own,
     # and whether those were hidden from them

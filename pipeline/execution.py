@@ -3,6 +3,7 @@ that stops a run with no usable worker left.  The cluster itself: ``pipeline.clu
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -52,8 +53,6 @@ def run_tasks(client, tasks: list[Task], on_done: Callable[[Task, dict], None], 
     the client's watchdog (``pipeline.cluster.connect`` attaches one) stops the run with
     ClusterFailed when no worker is left or a worker cannot run this package's code.
     """
-    from distributed import wait
-
     watchdog = getattr(client, "watchdog", None) or Watchdog(
         client, timeout=180.0, digest=worker_side.code_digest(),
         say=lambda text: console.print(text, highlight=False))
@@ -65,15 +64,35 @@ def run_tasks(client, tasks: list[Task], on_done: Callable[[Task, dict], None], 
     columns = (TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(),
                TextColumn("entries"), TextColumn("{task.fields[rate]} /s"), TimeElapsedColumn(),
                TextColumn("ETA"), TimeRemainingColumn())
+    try:
+        _consume(client, pending, by_key, on_done, failures, watchdog, label, total, columns,
+                 console, progress)
+    except BaseException:
+        with contextlib.suppress(Exception):  # the cluster may be gone already
+            client.cancel(list(pending))  # a failed write or Ctrl-C: no work left running
+        raise
+    if failures:
+        task, exc = failures[0]
+        raise TaskFailed(f"{len(failures)} of {len(tasks)} {label} blocks failed after "
+                         f"{retries} retries; first: block {task.block}: {exc!r}. "
+                         "Finished blocks are saved; re-run to retry the rest.")
+
+
+def _consume(client, pending: set, by_key, on_done, failures: list, watchdog, label: str,
+             total: int, columns, console, progress: bool) -> None:
+    """Hand each finished future's result to ``on_done``; ``pending`` shrinks in place."""
+    from distributed import wait
+
     start = time.perf_counter()
     with Progress(*columns, console=console, disable=not progress, transient=False) as bar:
         job = bar.add_task(label, total=total, rate="-")
         done = 0
         while pending:
             try:
-                finished, pending = wait(pending, timeout=POLL_S, return_when="FIRST_COMPLETED")
+                finished = wait(pending, timeout=POLL_S, return_when="FIRST_COMPLETED").done
             except TimeoutError:
-                finished = ()
+                finished = set()
+            pending -= finished
             for future in finished:
                 task = by_key[future.key]
                 try:
@@ -91,8 +110,3 @@ def run_tasks(client, tasks: list[Task], on_done: Callable[[Task, dict], None], 
                 future.release()
             if pending:
                 watchdog.check()
-    if failures:
-        task, exc = failures[0]
-        raise TaskFailed(f"{len(failures)} of {len(tasks)} {label} blocks failed after "
-                         f"{retries} retries; first: block {task.block}: {exc!r}. "
-                         "Finished blocks are saved; re-run to retry the rest.")

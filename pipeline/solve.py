@@ -203,7 +203,7 @@ def solve(run, out_dir: Path) -> dict:
             f"x {theta.shape[0]} constraints of {store.path}")
     records: dict[int, dict] = {}
     max_eval = budget or theta.shape[0]
-    tasks = [Task(key=f"solve-{store.attrs['config_hash']}-{k}-{s}", fn=solve_instance,
+    tasks = [Task(key=f"solve-{run.token}-{k}-{s}", fn=solve_instance,
                   args=(spec, instances[k], s, seed, train, theta, d, names,
                         run.plain["evaluate"]["c"], max_eval, settings["max_seconds"],
                         k % 2 == 1, train_feasible, train_times),

@@ -85,7 +85,7 @@ class StoreResults:
 
 def load(path) -> StoreResults:
     """Read a store whose ``evaluate`` stage has finished (StoreError naming what is missing)."""
-    store = ScoreStore.open(Path(path).expanduser().absolute())
+    store = ScoreStore.open(path)  # a local path or a URL
     info = store.stage_info("evaluate")
     if info is None:
         raise StoreError(f"{store.path} has no evaluation yet; run stage=evaluate (or "
