@@ -123,7 +123,10 @@ def test_enclosed_object_is_infeasible_for_every_grasp(domain):
     assert Status.OK not in statuses
 
 
-def test_domain_results_are_bitwise_identical_in_another_process(domain):
+def test_domain_results_are_identical_in_another_process(domain):
+    """Statuses are exact; paths agree to 1e-12: TrajOpt's QP sums round differently under
+    multi-threaded BLAS (the test process) and single-threaded BLAS (Dask workers), so only
+    the last bits may differ (tests/test_replay.py keeps the same rule)."""
     inst = domain.sample_instance(3)
     calls = [(j, domain.plan(inst, j, seed=j)) for j in range(0, 162, 9)]
     assert any(r.feasible for _, r in calls)
@@ -131,13 +134,14 @@ def test_domain_results_are_bitwise_identical_in_another_process(domain):
         "import json, sys; from pipeline.domains import load_domain; "
         f"d = load_domain('grasp_arm', planner={TRAJOPT!r}); inst = json.loads(sys.argv[1]); "
         "print(json.dumps([[int(d.plan(inst, j, seed=j).status), "
-        "d.plan(inst, j, seed=j).path.tobytes().hex()] for j in json.loads(sys.argv[2])]))")
+        "d.plan(inst, j, seed=j).path.tolist()] for j in json.loads(sys.argv[2])]))")
     out = subprocess.run([sys.executable, "-c", code, json.dumps(inst),
                           json.dumps([j for j, _ in calls][::-1])],
                          capture_output=True, text=True, check=True).stdout
     other = json.loads(out.strip().splitlines()[-1])[::-1]
     for (_, r), (status, path) in zip(calls, other, strict=True):
-        assert int(r.status) == status and r.path.tobytes().hex() == path
+        assert int(r.status) == status
+        assert np.allclose(r.path, np.array(path), rtol=1e-12, atol=1e-12)
 
 
 def test_planar_refuses_trajopt():
