@@ -10,8 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.evaluation import path_scores
-from pipeline.store import ScoreStore, StoreError
+from pipeline.store import ScoreStore, StoreError, path_scores
 
 FORMATS = ("npz", "csv")
 

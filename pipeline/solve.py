@@ -19,11 +19,10 @@ import numpy as np
 
 import box_core
 from box_core.stats import mean_ci, paired_ratio
-from pipeline.evaluation import RAWPLANNER, load_matrix, path_scores
+from pipeline.evaluation import RAWPLANNER
 from pipeline.report import fmt
-from pipeline.report.data import domain_spec
 from pipeline.report.figures import label
-from pipeline.store import ScoreStore, StoreError
+from pipeline.store import ScoreStore, StoreError, result_key
 
 #: Fresh instance i of run ``seed`` is drawn from SeedSequence([seed, SOLVE_STREAM, i]);
 #: the store's instances use SeedSequence([seed, i]).  Collisions are skipped explicitly.
@@ -45,7 +44,7 @@ def fresh_seeds(seed: int, n: int, used) -> list[int]:
 def training_matrix(store: ScoreStore, use_incomplete: bool, failure_rule: str):
     """(filled scores of the usable rows, their feasibility and times, theta, failure
     value, rows used)."""
-    if store.stage_info("constraints") is None or not store.has("scores/done"):
+    if store.stage_info("constraints") is None or not store.has(result_key("scores", "done")):
         raise StoreError(f"{store.path} has no score matrix yet; run stage=generate first")
     done = store.done("scores")
     complete = done.all(axis=1)
@@ -58,13 +57,9 @@ def training_matrix(store: ScoreStore, use_incomplete: bool, failure_rule: str):
         if complete.sum() < 3:
             raise StoreError(f"{store.path} has only {int(complete.sum())} complete rows; "
                              "the prior needs at least 3")
-        feasible = store.array("scores/feasible")[...][complete]
-        length = store.array("scores/length")[...][complete]
-        times = store.array("scores/time")[...][complete]
-        theta = store.array("constraints/theta")[...]
-        scores = path_scores(feasible, length)
+        scores, feasible, times, theta = store.score_matrix(rows=complete)
     else:
-        scores, feasible, times, theta = load_matrix(store)
+        scores, feasible, times, theta = store.score_matrix()
     if not feasible.any():
         raise StoreError(f"{store.path}: no feasible entry in the training rows; BOX has "
                          "nothing to learn from")
@@ -192,12 +187,12 @@ def solve(run, out_dir: Path) -> dict:
         box_core.selectors.check_selector(name, {"c": 1.0} if name == "box" else {},
                                           features=np.zeros((1, 1)))
     store = ScoreStore.open(run.path)
-    spec = domain_spec(store)
+    spec = store.domain_spec()
     train, train_feasible, train_times, theta, d, rows = training_matrix(
         store, settings["use_incomplete"], run.plain["evaluate"]["failure_rule"])
     seed = int(store.attrs["config"]["seed"])
     domain = domain_for(spec)
-    seeds = fresh_seeds(seed, settings["n"], store.array("instances/seed")[...])
+    seeds = fresh_seeds(seed, settings["n"], store.instance_seeds())
     instances = [domain.sample_instance(s) for s in seeds]
     run.say(f"solve: {len(seeds)} fresh {spec['name']} instances, prior from {rows.size} rows "
             f"x {theta.shape[0]} constraints of {store.path}")
