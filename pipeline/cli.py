@@ -256,7 +256,7 @@ def show(
     except OSError as exc:
         _fail(f"-o {target}: cannot write there ({exc.strerror or exc})")
     stored = ""
-    if st.has(result_key("scores", "done")) and st.done("scores")[instance, constraint]:
+    if st.has_results("scores") and st.done("scores")[instance, constraint]:
         was = bool(st.array(result_key("scores", "feasible"))[instance, constraint])
         stored = " (as in the score matrix)" if was == plan.feasible else \
             f" (the score matrix says {'feasible' if was else 'infeasible'})"

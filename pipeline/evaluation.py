@@ -17,7 +17,7 @@ def own_constraints(store) -> np.ndarray | None:
     store's constraints come from no instance (constraints/source_instance all -1)."""
     if not store.has(SOURCE_INSTANCE):
         return None
-    source = store.array(SOURCE_INSTANCE)[...]
+    source = store.source_instances()
     if not (source >= 0).any():
         return None
     n = store.array(result_key("scores", "feasible")).shape[0]

@@ -22,7 +22,7 @@ from box_core.stats import mean_ci, paired_ratio
 from pipeline.evaluation import RAWPLANNER
 from pipeline.report import fmt
 from pipeline.report.figures import label
-from pipeline.store import ScoreStore, StoreError, result_key
+from pipeline.store import ScoreStore, StoreError
 
 #: Fresh instance i of run ``seed`` is drawn from SeedSequence([seed, SOLVE_STREAM, i]);
 #: the store's instances use SeedSequence([seed, i]).  Collisions are skipped explicitly.
@@ -44,7 +44,7 @@ def fresh_seeds(seed: int, n: int, used) -> list[int]:
 def training_matrix(store: ScoreStore, use_incomplete: bool, failure_rule: str):
     """(filled scores of the usable rows, their feasibility and times, theta, failure
     value, rows used)."""
-    if store.stage_info("constraints") is None or not store.has(result_key("scores", "done")):
+    if store.stage_info("constraints") is None or not store.has_results("scores"):
         raise StoreError(f"{store.path} has no score matrix yet; run stage=generate first")
     done = store.done("scores")
     complete = done.all(axis=1)

@@ -580,6 +580,14 @@ class ScoreStore:
         """The instances' specs (JSON text)."""
         return self.array(INSTANCE_SPEC)[...]
 
+    def has_results(self, group: str) -> bool:
+        """Whether result group ``group`` (``raw`` or ``scores``) has been created."""
+        return self.has(result_key(group, "done"))
+
+    def source_instances(self) -> np.ndarray:
+        """(m,) the instance whose raw solution gave each constraint; -1: fixed."""
+        return self.array(SOURCE_INSTANCE)[...]
+
     def theta(self) -> np.ndarray:
         """(m, p) the constraints' features."""
         return self.array(THETA)[...]
