@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 import box_core
+from pipeline.context import StageContext
 from pipeline.store import SOURCE_INSTANCE, result_key
 from pipeline.tables import summary_table
 
@@ -29,13 +30,13 @@ def selector_params(names, settings) -> dict:
     return {"box": {"c": settings["c"]}} if "box" in names else {}
 
 
-def evaluate(run) -> None:
-    store = run.store
-    settings = run.plain["evaluate"]
+def evaluate(ctx: StageContext) -> None:
+    store = ctx.store
+    settings = ctx.config["evaluate"]
     info = store.stage_info("evaluate")
     if info is not None and info.get("settings") == settings:
-        run.say("evaluate: already complete with these settings; nothing to do")
-        print_stored_summary(run)
+        ctx.say("evaluate: already complete with these settings; nothing to do")
+        print_stored_summary(ctx)
         return
     names = list(dict.fromkeys(settings["selectors"]))
     with_raw = RAWPLANNER in names
@@ -45,7 +46,7 @@ def evaluate(run) -> None:
     hide = own if settings.get("exclude_own_constraints", True) else None
     try:
         result = box_core.loocv(scores, times=times, feasible=feasible, features=theta,
-                                selectors=names, k=settings["k"], seed=run.cfg.seed,
+                                selectors=names, k=settings["k"], seed=ctx.seed,
                                 params=selector_params(names, settings),
                                 failure_rule=settings["failure_rule"], forbidden=hide)
     except ValueError as exc:
@@ -66,7 +67,7 @@ def evaluate(run) -> None:
     store.mark_finished("evaluate", settings=settings, failure_value=result.failure_value,
                         summary=summary.to_dict(), leakage=leakage)
     n, m = scores.shape
-    run.console.print(summary_table(summary, title=f"{run.path.name}  ({n} x {m})"))
+    ctx.console.print(summary_table(summary, title=f"{ctx.path.name}  ({n} x {m})"))
 
 
 def _write(store, result, others) -> None:
@@ -94,10 +95,10 @@ def _write(store, result, others) -> None:
                      (inst,))[...] = values
 
 
-def print_stored_summary(run) -> None:
-    info = run.store.stage_info("evaluate") or {}
+def print_stored_summary(ctx: StageContext) -> None:
+    info = ctx.store.stage_info("evaluate") or {}
     summary = info.get("summary")
     if summary:
         for line in summary.get("selectors", []):
-            run.say(f"  {line['name']:<11} mean time to first feasible "
+            ctx.say(f"  {line['name']:<11} mean time to first feasible "
                     f"{line['mean_time']}  x {summary['reference']}: {line['speedup']}")

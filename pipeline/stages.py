@@ -26,6 +26,7 @@ from rich.console import Console
 
 from pipeline import configs, validation, worker
 from pipeline.configs import Stage
+from pipeline.context import StageContext
 from pipeline.domains import ConstraintSet, load_domain
 from pipeline.execution import Task, connect_first, dask_client, run_tasks
 from pipeline.integrity import Damage, digest
@@ -159,6 +160,13 @@ class Run:
     def close(self) -> None:
         self._stack.close()
 
+    def context(self) -> StageContext:
+        """What the evaluate and solve stages see of this run."""
+        return StageContext(store=self.store, path=self.path, config=self.plain,
+                            seed=self.cfg.seed, token=self.token,
+                            retries=self.cfg.cluster.retries, progress=self.cfg.progress,
+                            console=self.console, client=lambda: self.client)
+
     def say(self, text: str) -> None:
         self.console.print(text, highlight=False)
 
@@ -203,7 +211,7 @@ class Run:
         ok = set(finished) - damage.blocks
         return [b for b in np.ndindex(*store.grid(group)) if b not in ok], damage
 
-    def _pending(self, group: str, coords: dict) -> list[tuple[int, ...]]:
+    def pending_blocks(self, group: str, coords: dict) -> list[tuple[int, ...]]:
         """Blocks of ``group`` to compute; damaged finished ones are un-marked first (and
         the coordinates, derived from other groups, written again)."""
         changed = self.changed_inputs(group)
@@ -222,7 +230,7 @@ class Run:
             self.store.write_coords(group, coords, names)
         return sorted(pending)
 
-    def _run_blocks(self, group: str, tasks: list[Task], label: str) -> Counter:
+    def run_blocks(self, group: str, tasks: list[Task], label: str) -> Counter:
         statuses: Counter = Counter()
 
         def finished(task: Task, result: tuple[dict, dict]) -> None:
@@ -383,7 +391,7 @@ def stage_raw(run: Run) -> None:
                   {"description": "constraint extracted from the raw solution (NaN: none)"})]
         store.create_results("raw", (n,), (b,), ("instance",), run.domain.steps, extra,
                              coords)
-    pending = run._pending("raw", coords)
+    pending = run.pending_blocks("raw", coords)
     store.forget_stage("raw")
     specs, seeds = _inputs(run)
     tasks = []
@@ -394,7 +402,7 @@ def stage_raw(run: Run) -> None:
                           entries=rows.stop - rows.start, block=(bi,)))
     if len(pending) < -(-n // b):
         run.say(f"raw: resuming, {n - sum(t.entries for t in tasks)} of {n} already done")
-    run._run_blocks("raw", tasks, "raw")
+    run.run_blocks("raw", tasks, "raw")
     feasible = store.array(result_key("raw", "feasible"))[:]
     run.finish("raw", feasible=int(feasible.sum()))
     run.say(f"raw: RAWPLANNER solved {int(feasible.sum())} of {n} instances")
@@ -461,7 +469,7 @@ def stage_scores(run: Run) -> None:
     if not store.has_table("scores") or store.missing_arrays("scores"):
         store.create_results("scores", (n, m), (bi, bj), ("instance", "constraint"),
                              run.domain.steps, coords=coords)
-    pending = run._pending("scores", coords)
+    pending = run.pending_blocks("scores", coords)
     store.forget_stage("scores")
     specs, seeds = _inputs(run)
     theta = store.theta()
@@ -476,7 +484,7 @@ def stage_scores(run: Run) -> None:
     todo = sum(t.entries for t in tasks)
     if todo < n * m:
         run.say(f"scores: resuming, {n * m - todo} of {n * m} entries already done")
-    statuses = run._run_blocks("scores", tasks, "scores")
+    statuses = run.run_blocks("scores", tasks, "scores")
     feasible = store.array(result_key("scores", "feasible"))[...]
     run.finish("scores", feasible_fraction=float(feasible.mean()))
     mix = ", ".join(f"{k} {v}" for k, v in statuses.most_common()) or "none this run"
@@ -494,7 +502,7 @@ def stage_evaluate(run: Run) -> None:
     if reason is not None:
         store.forget_stage("evaluate")  # derived data: replaced as a whole
         store.remove("evaluation")
-    evaluation.evaluate(run)
+    evaluation.evaluate(run.context())
     if reason is not None:
         outputs = {key: f"{digest(store.array(key)[...]):016x}"
                    for key in store.arrays_under("evaluation")}
@@ -549,7 +557,7 @@ def stage_report(run: Run) -> None:
 def stage_solve(run: Run) -> None:
     from pipeline.solve import solve
 
-    solve(run, output_dir(run.plain["solve"]["dir"], "solve"))
+    solve(run.context(), output_dir(run.plain["solve"]["dir"], "solve"))
 
 
 def run_pipeline(cfg, console: Console) -> None:
@@ -590,7 +598,7 @@ def _write_stages(run: Run, names) -> None:
             if not run.writing and name == "evaluate":
                 from pipeline.evaluation import evaluate
 
-                evaluate(run)  # says "already complete" and shows the stored summary
+                evaluate(run.context())  # says "already complete" and shows the stored summary
                 continue
             if not run.writing:
                 run.say(f"{name}: already complete; nothing to do")
