@@ -14,7 +14,7 @@ from rich.markup import escape
 import box_core
 from box_core import synthetic
 from box_core.io import MatrixFile, load_matrix
-from pipeline.store import ScoreStore, StoreError
+from pipeline.store import INSTANCE_SEED, INSTANCE_SPEC, THETA, ScoreStore, StoreError, result_key
 from pipeline.tables import summary_table
 
 app = typer.Typer(
@@ -84,14 +84,13 @@ def evaluate(
 def _store_matrix(path: Path) -> tuple[MatrixFile, np.ndarray | None]:
     """The store's matrix, and the columns each row must not try: those extracted from its
     own raw solution (hidden as ``stage=evaluate`` hides them by default)."""
-    from pipeline.evaluation import load_matrix as store_matrix
     from pipeline.evaluation import own_constraints
 
     store = ScoreStore.open(path)
     if store.stage_info("scores") is None:
         raise StoreError(f"{path}: the score matrix is not complete; finish it with "
                          "python -m pipeline stage=generate")
-    scores, feasible, times, theta = store_matrix(store)
+    scores, feasible, times, theta = store.score_matrix()
     return (MatrixFile(scores=scores, times=times, feasible=feasible, features=theta),
             own_constraints(store))
 
@@ -222,19 +221,18 @@ def show(
     With --constraint J, entry (I, J) is planned again with its stored seed, which gives
     the same plan as in the score matrix, and drawn.
     """
-    from pipeline.report.data import domain_spec
     from pipeline.worker import domain_for, entry_seed
 
     try:
         st = ScoreStore.open(store)
-        if not st.has("instances/spec"):
+        if not st.has(INSTANCE_SPEC):
             raise StoreError(f"{store} has no instances yet; run stage=instances first")
-        specs = st.array("instances/spec")
+        specs = st.array(INSTANCE_SPEC)
         n = specs.shape[0]
         if not 0 <= instance < n:
             raise ValueError(f"--instance {instance} out of range: the store has {n} instances")
         spec = json.loads(str(specs[instance]))
-        domain = domain_for(domain_spec(st))
+        domain = domain_for(st.domain_spec())
         name = f"instance{instance}" + ("" if constraint is None else f"-constraint{constraint}")
         target = out_path or Path.cwd() / f"{name}.png"
         check_png_target(target, overwrite)
@@ -242,14 +240,14 @@ def show(
             domain.render(spec, None, target)
             out.print(f"wrote {target}")
             return
-        if not st.has("constraints/theta"):
+        if not st.has(THETA):
             raise StoreError(f"{store} has no constraints yet; run stage=constraints first")
-        theta = st.array("constraints/theta")[...]
+        theta = st.theta()
         if not 0 <= constraint < theta.shape[0]:
             raise ValueError(f"--constraint {constraint} out of range: the store has "
                              f"{theta.shape[0]} constraints")
         seed = int(st.attrs["config"]["seed"])
-        inst_seed = int(st.array("instances/seed")[instance])
+        inst_seed = int(st.array(INSTANCE_SEED)[instance])
         plan = domain.plan(domain.check_instance(spec), theta[constraint],
                            seed=entry_seed(seed, inst_seed, constraint))
         domain.render(spec, plan, target, constraint=theta[constraint])
@@ -258,8 +256,8 @@ def show(
     except OSError as exc:
         _fail(f"-o {target}: cannot write there ({exc.strerror or exc})")
     stored = ""
-    if st.has("scores/done") and st.done("scores")[instance, constraint]:
-        was = bool(st.array("scores/feasible")[instance, constraint])
+    if st.has_results("scores") and st.done("scores")[instance, constraint]:
+        was = bool(st.array(result_key("scores", "feasible"))[instance, constraint])
         stored = " (as in the score matrix)" if was == plan.feasible else \
             f" (the score matrix says {'feasible' if was else 'infeasible'})"
     verdict = f"feasible, length {plan.length:.4g}" if plan.feasible else plan.status.name.lower()

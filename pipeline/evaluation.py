@@ -5,42 +5,23 @@ from __future__ import annotations
 import numpy as np
 
 import box_core
-from pipeline.store import StoreError
+from pipeline.context import StageContext
+from pipeline.store import SOURCE_INSTANCE, result_key
 from pipeline.tables import summary_table
 
 #: Measured outside the LOOCV: RAWPLANNER's time comes from stage ``raw``.
 RAWPLANNER = "rawplanner"
 
 
-def path_scores(feasible, length) -> np.ndarray:
-    """Scores as box_core takes them: -(path length) where feasible, 0 elsewhere (the
-    failure value replaces those entries at analysis time)."""
-    return np.where(feasible, -np.nan_to_num(length, nan=0.0), 0.0)
-
-
-def load_matrix(store):
-    """(scores, feasible, times, features) of a finished store, as box_core wants them."""
-    feasible = store.array("scores/feasible")[...]
-    length = store.array("scores/length")[...]
-    times = store.array("scores/time")[...]
-    if np.isnan(times).any():
-        raise StoreError(f"{store.path}: scores/time has missing entries; is stage scores "
-                         "complete?")
-    scores = path_scores(feasible, length)
-    if np.isnan(length[feasible]).any():
-        raise StoreError(f"{store.path}: a feasible entry has no path length (damaged store?)")
-    return scores, feasible, times, store.array("constraints/theta")[...]
-
-
 def own_constraints(store) -> np.ndarray | None:
     """(n, m) bool: column j was extracted from row i's own raw solution, or None when the
     store's constraints come from no instance (constraints/source_instance all -1)."""
-    if not store.has("constraints/source_instance"):
+    if not store.has(SOURCE_INSTANCE):
         return None
-    source = store.array("constraints/source_instance")[...]
+    source = store.source_instances()
     if not (source >= 0).any():
         return None
-    n = store.array("scores/feasible").shape[0]
+    n = store.array(result_key("scores", "feasible")).shape[0]
     return source[None, :] == np.arange(n)[:, None]
 
 
@@ -49,31 +30,32 @@ def selector_params(names, settings) -> dict:
     return {"box": {"c": settings["c"]}} if "box" in names else {}
 
 
-def evaluate(run) -> None:
-    store = run.store
-    settings = run.plain["evaluate"]
+def evaluate(ctx: StageContext) -> None:
+    store = ctx.store
+    settings = ctx.config["evaluate"]
     info = store.stage_info("evaluate")
     if info is not None and info.get("settings") == settings:
-        run.say("evaluate: already complete with these settings; nothing to do")
-        print_stored_summary(run)
+        ctx.say("evaluate: already complete with these settings; nothing to do")
+        print_stored_summary(ctx)
         return
     names = list(dict.fromkeys(settings["selectors"]))
     with_raw = RAWPLANNER in names
     names = [s for s in names if s != RAWPLANNER]
-    scores, feasible, times, theta = load_matrix(store)
+    scores, feasible, times, theta = store.score_matrix()
     own = own_constraints(store)
     hide = own if settings.get("exclude_own_constraints", True) else None
     try:
         result = box_core.loocv(scores, times=times, feasible=feasible, features=theta,
-                                selectors=names, k=settings["k"], seed=run.cfg.seed,
+                                selectors=names, k=settings["k"], seed=ctx.seed,
                                 params=selector_params(names, settings),
                                 failure_rule=settings["failure_rule"], forbidden=hide)
     except ValueError as exc:
         raise ValueError(f"evaluate: {exc}") from None
     others = {}
     if with_raw:
-        raw_ok = store.array("raw/feasible")[...]
-        others[RAWPLANNER] = np.where(raw_ok, store.array("raw/time")[...], np.nan)
+        raw_ok = store.array(result_key("raw", "feasible"))[...]
+        others[RAWPLANNER] = np.where(raw_ok, store.array(result_key("raw", "time"))[...],
+                                     np.nan)
     summary = result.summary(others=others)
     store.forget_stage("evaluate")  # derived data: replaced as a whole
     store.remove("evaluation")  # any kind of store: local, file:// or s3://
@@ -85,7 +67,7 @@ def evaluate(run) -> None:
     store.mark_finished("evaluate", settings=settings, failure_value=result.failure_value,
                         summary=summary.to_dict(), leakage=leakage)
     n, m = scores.shape
-    run.console.print(summary_table(summary, title=f"{run.path.name}  ({n} x {m})"))
+    ctx.console.print(summary_table(summary, title=f"{ctx.path.name}  ({n} x {m})"))
 
 
 def _write(store, result, others) -> None:
@@ -113,10 +95,10 @@ def _write(store, result, others) -> None:
                      (inst,))[...] = values
 
 
-def print_stored_summary(run) -> None:
-    info = run.store.stage_info("evaluate") or {}
+def print_stored_summary(ctx: StageContext) -> None:
+    info = ctx.store.stage_info("evaluate") or {}
     summary = info.get("summary")
     if summary:
         for line in summary.get("selectors", []):
-            run.say(f"  {line['name']:<11} mean time to first feasible "
+            ctx.say(f"  {line['name']:<11} mean time to first feasible "
                     f"{line['mean_time']}  x {summary['reference']}: {line['speedup']}")

@@ -10,30 +10,33 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.evaluation import path_scores
-from pipeline.store import ScoreStore, StoreError
+from pipeline.store import ScoreStore, StoreError, path_scores, result_key
 
 FORMATS = ("npz", "csv")
+STEP = result_key("scores", "step")
 
 
 def _arrays(store: ScoreStore) -> dict[str, np.ndarray]:
-    if not store.has("scores/done"):
+    if not store.has_results("scores"):
         raise StoreError(f"{store.path} has no score matrix yet; run stage=generate first")
     done = store.done("scores")
-    feasible = store.array("scores/feasible")[...] & done
-    length = store.array("scores/length")[...]
+    def scores(name):
+        return store.array(result_key("scores", name))[...]
+
+    feasible = scores("feasible") & done
+    length = scores("length")
     return {
         "scores": path_scores(feasible, length),  # what ``box evaluate`` reads
         "feasible": feasible,
-        "times": store.array("scores/time")[...],
-        "features": store.array("constraints/theta")[...],
+        "times": scores("time"),
+        "features": store.theta(),
         "length": length,
-        "status": store.array("scores/status")[...],
-        "checks": store.array("scores/checks")[...],
-        "step": (store.array("scores/step")[...] if store.has("scores/step")  # older stores
+        "status": scores("status"),
+        "checks": scores("checks"),
+        "step": (scores("step") if store.has(result_key("scores", "step"))  # older stores
                  else np.full(feasible.shape, -1, dtype="int8")),
         "done": done,
-        "instance_seed": store.array("instances/seed")[...],
+        "instance_seed": store.instance_seeds(),
     }
 
 
@@ -46,8 +49,8 @@ def metadata(store: ScoreStore, arrays: dict) -> dict:
             "git_revision": attrs.get("git_revision"), "created": attrs.get("created"),
             "stages": attrs.get("stages"), "complete": bool(arrays["done"].all()),
             "status_codes": {s.name: int(s) for s in Status},
-            "steps": (store.array("scores/step").attrs.get("flag_meanings", "").split()
-                      if store.has("scores/step") else []),
+            "steps": (store.array(STEP).attrs.get("flag_meanings", "").split()
+                      if store.has(STEP) else []),
             "score": "-(path length) where feasible; 0 where infeasible or not computed",
             "times": "seconds per planning call; NaN where not computed"}
 
@@ -166,7 +169,7 @@ def _write_csv(out: Path, store, arrays, meta) -> None:
     with open(out / "instances.csv", "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["instance", "seed", "spec"])
-        specs = store.array("instances/spec")[...]
+        specs = store.instance_specs()
         for i, (seed, spec) in enumerate(zip(arrays["instance_seed"], specs, strict=True)):
             w.writerow([i, int(seed), str(spec)])
     (out / "metadata.json").write_text(json.dumps(meta, indent=1))

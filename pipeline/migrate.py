@@ -12,6 +12,8 @@ import numpy as np
 
 from pipeline.store import (
     LAYOUT_VERSION,
+    RAW_CONSTRAINT,
+    THETA,
     ScoreStore,
     block_region,
     feature_coord,
@@ -25,27 +27,27 @@ def migrate(store: ScoreStore, domain) -> list[str]:
     """Migrate ``store`` (opened for writing, lock held); return what was done."""
     notes = []
     stages = store.attrs.get("stages", {})
-    seeds = store.array("instances/seed")[...] if "instances" in stages else None
+    seeds = store.instance_seeds() if "instances" in stages else None
     if "instances" in stages:
         store.create_table("instances", ["seed", "spec"])
         _adopt(store, "instances", whole=True)
     if "constraints" in stages:
-        p = store.array("constraints/theta").shape[1]
+        p = store.array(THETA).shape[1]
         store.write_coords("constraints", feature_coord(feature_names(domain, p)),
                            ["theta", "source_instance"])
         store.create_table("constraints", ["theta", "source_instance", "feature"])
         _adopt(store, "constraints", whole=True)
-    if store.has("raw/done") and seeds is not None:
-        p = store.array("raw/constraint").shape[1]
+    if store.has_results("raw") and seeds is not None:
+        p = store.array(RAW_CONSTRAINT).shape[1]
         names = _data_names(store, "raw")
         coords = {**instance_coord(seeds), **feature_coord(feature_names(domain, p))}
         store.write_coords("raw", coords, names)
         store.create_table("raw", [*names, *coords])
         notes.append(f"raw: {_adopt(store, 'raw')} blocks adopted")
-    if store.has("scores/done") and seeds is not None and "constraints" in stages:
+    if store.has_results("scores") and seeds is not None and "constraints" in stages:
         names = _data_names(store, "scores")
         coords = {**instance_coord(seeds),
-                  **source_coord(store.array("constraints/source_instance")[...])}
+                  **source_coord(store.source_instances())}
         store.write_coords("scores", coords, names)
         store.create_table("scores", [*names, *coords])
         notes.append(f"scores: {_adopt(store, 'scores')} blocks adopted")

@@ -19,9 +19,9 @@ import numpy as np
 
 import box_core
 from box_core.stats import mean_ci, paired_ratio
-from pipeline.evaluation import RAWPLANNER, load_matrix, path_scores
+from pipeline.context import StageContext
+from pipeline.evaluation import RAWPLANNER
 from pipeline.report import fmt
-from pipeline.report.data import domain_spec
 from pipeline.report.figures import label
 from pipeline.store import ScoreStore, StoreError
 
@@ -45,7 +45,7 @@ def fresh_seeds(seed: int, n: int, used) -> list[int]:
 def training_matrix(store: ScoreStore, use_incomplete: bool, failure_rule: str):
     """(filled scores of the usable rows, their feasibility and times, theta, failure
     value, rows used)."""
-    if store.stage_info("constraints") is None or not store.has("scores/done"):
+    if store.stage_info("constraints") is None or not store.has_results("scores"):
         raise StoreError(f"{store.path} has no score matrix yet; run stage=generate first")
     done = store.done("scores")
     complete = done.all(axis=1)
@@ -58,13 +58,9 @@ def training_matrix(store: ScoreStore, use_incomplete: bool, failure_rule: str):
         if complete.sum() < 3:
             raise StoreError(f"{store.path} has only {int(complete.sum())} complete rows; "
                              "the prior needs at least 3")
-        feasible = store.array("scores/feasible")[...][complete]
-        length = store.array("scores/length")[...][complete]
-        times = store.array("scores/time")[...][complete]
-        theta = store.array("constraints/theta")[...]
-        scores = path_scores(feasible, length)
+        scores, feasible, times, theta = store.score_matrix(rows=complete)
     else:
-        scores, feasible, times, theta = load_matrix(store)
+        scores, feasible, times, theta = store.score_matrix()
     if not feasible.any():
         raise StoreError(f"{store.path}: no feasible entry in the training rows; BOX has "
                          "nothing to learn from")
@@ -169,14 +165,15 @@ def _jsonable(record: dict) -> dict:
     return out
 
 
-def solve(run, out_dir: Path) -> dict:
-    """Run stage solve for ``run`` (its store must exist); write results into ``out_dir``."""
+def solve(ctx: StageContext, out_dir: Path) -> dict:
+    """Run stage solve for ``ctx``'s run (its store must exist); write results into
+    ``out_dir``."""
     from rich.table import Table
 
     from pipeline.execution import Task, run_tasks
     from pipeline.worker import domain_for
 
-    cfg, settings = run.cfg, run.plain["solve"]
+    settings = ctx.config["solve"]
     if settings["n"] < 1:
         raise ValueError(f"solve.n must be >= 1, got {settings['n']}")
     budget = settings["max_evaluations"]
@@ -191,26 +188,26 @@ def solve(run, out_dir: Path) -> dict:
                              "instance, which live solving does not have")
         box_core.selectors.check_selector(name, {"c": 1.0} if name == "box" else {},
                                           features=np.zeros((1, 1)))
-    store = ScoreStore.open(run.path)
-    spec = domain_spec(store)
+    store = ScoreStore.open(ctx.path)
+    spec = store.domain_spec()
     train, train_feasible, train_times, theta, d, rows = training_matrix(
-        store, settings["use_incomplete"], run.plain["evaluate"]["failure_rule"])
+        store, settings["use_incomplete"], ctx.config["evaluate"]["failure_rule"])
     seed = int(store.attrs["config"]["seed"])
     domain = domain_for(spec)
-    seeds = fresh_seeds(seed, settings["n"], store.array("instances/seed")[...])
+    seeds = fresh_seeds(seed, settings["n"], store.instance_seeds())
     instances = [domain.sample_instance(s) for s in seeds]
-    run.say(f"solve: {len(seeds)} fresh {spec['name']} instances, prior from {rows.size} rows "
+    ctx.say(f"solve: {len(seeds)} fresh {spec['name']} instances, prior from {rows.size} rows "
             f"x {theta.shape[0]} constraints of {store.path}")
     records: dict[int, dict] = {}
     max_eval = budget or theta.shape[0]
-    tasks = [Task(key=f"solve-{run.token}-{k}-{s}", fn=solve_instance,
+    tasks = [Task(key=f"solve-{ctx.token}-{k}-{s}", fn=solve_instance,
                   args=(spec, instances[k], s, seed, train, theta, d, names,
-                        run.plain["evaluate"]["c"], max_eval, settings["max_seconds"],
+                        ctx.config["evaluate"]["c"], max_eval, settings["max_seconds"],
                         k % 2 == 1, train_feasible, train_times),
                   entries=1, block=k) for k, s in enumerate(seeds)]
-    run_tasks(run.client, tasks, lambda task, rec: records.__setitem__(task.block, rec),
-              retries=cfg.cluster.retries, label="solve", console=run.console,
-              progress=cfg.progress)
+    run_tasks(ctx.client(), tasks, lambda task, rec: records.__setitem__(task.block, rec),
+              retries=ctx.retries, label="solve", console=ctx.console,
+              progress=ctx.progress)
     ordered = [records[k] for k in range(len(seeds))]
     out_dir.mkdir(parents=True, exist_ok=True)
     plans = out_dir / "plans"
@@ -225,13 +222,13 @@ def solve(run, out_dir: Path) -> dict:
         table.add_column(col)
     for row in rows_:
         table.add_row(*row)
-    run.console.print(table)
+    ctx.console.print(table)
     doc = {"store": str(store.path), "config_hash": store.attrs["config_hash"],
            "training_rows": int(rows.size), "failure_value": d, "settings": settings,
            "instances": instances, "records": [_jsonable(r) for r in ordered],
            "table": {"header": header, "rows": rows_}}
     (out_dir / "solve.json").write_text(json.dumps(doc, indent=1))
-    run.say(f"solve: results in {out_dir}")
+    ctx.say(f"solve: results in {out_dir}")
     return doc
 
 

@@ -26,12 +26,18 @@ from rich.console import Console
 
 from pipeline import configs, validation, worker
 from pipeline.configs import Stage
+from pipeline.context import StageContext
 from pipeline.domains import ConstraintSet, load_domain
 from pipeline.execution import Task, connect_first, dask_client, run_tasks
 from pipeline.integrity import Damage, digest
 from pipeline.location import locate
 from pipeline.store import (
+    INSTANCE_SEED,
+    INSTANCE_SPEC,
     LAYOUT_VERSION,
+    RAW_CONSTRAINT,
+    SOURCE_INSTANCE,
+    THETA,
     LockError,
     ScoreStore,
     StoreDamaged,
@@ -40,9 +46,11 @@ from pipeline.store import (
     block_region,
     check_is_ours,
     default_path,
+    domain_spec_of,
     feature_coord,
     feature_names,
     instance_coord,
+    result_key,
     source_coord,
     write_error,
 )
@@ -52,11 +60,11 @@ GENERATE = ("instances", "raw", "constraints", "scores")
 #: What each stage is computed from (its digests are recorded with the stage).
 INPUTS = {
     "instances": (),
-    "raw": ("instances/seed", "instances/spec"),
-    "constraints": ("raw/constraint",),
-    "scores": ("instances/seed", "instances/spec", "constraints/theta"),
-    "evaluate": ("scores/feasible", "scores/length", "scores/time", "constraints/theta",
-                 "raw/feasible", "raw/time"),
+    "raw": (INSTANCE_SEED, INSTANCE_SPEC),
+    "constraints": (RAW_CONSTRAINT,),
+    "scores": (INSTANCE_SEED, INSTANCE_SPEC, THETA),
+    "evaluate": (*(result_key("scores", k) for k in ("feasible", "length", "time")), THETA,
+                 result_key("raw", "feasible"), result_key("raw", "time")),
 }
 
 
@@ -79,10 +87,9 @@ class Run:
         self.plain = OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)
         validation.check_values(self.plain)  # also when stages run without the entry point
         planner = configs.planner_settings(self.plain["planner"])
-        name = self.plain["domain"]["name"]
-        overrides = {k: v for k, v in self.plain["domain"].items() if k != "name"}
-        self.domain = load_domain(name, planner=planner, **overrides)
-        self.domain_spec = {"name": name, "config": overrides, "planner": self.plain["planner"]}
+        self.domain_spec = domain_spec_of(self.plain)
+        name = self.domain_spec["name"]
+        self.domain = load_domain(name, planner=planner, **self.domain_spec["config"])
         self.location = locate(cfg.store.path or default_path(name, planner.name, cfg.seed),
                                self.plain["store"].get("storage_options"))
         self.path = self.location.path
@@ -153,6 +160,13 @@ class Run:
     def close(self) -> None:
         self._stack.close()
 
+    def context(self) -> StageContext:
+        """What the evaluate and solve stages see of this run."""
+        return StageContext(store=self.store, path=self.path, config=self.plain,
+                            seed=self.cfg.seed, token=self.token,
+                            retries=self.cfg.cluster.retries, progress=self.cfg.progress,
+                            console=self.console, client=lambda: self.client)
+
     def say(self, text: str) -> None:
         self.console.print(text, highlight=False)
 
@@ -197,7 +211,7 @@ class Run:
         ok = set(finished) - damage.blocks
         return [b for b in np.ndindex(*store.grid(group)) if b not in ok], damage
 
-    def _pending(self, group: str, coords: dict) -> list[tuple[int, ...]]:
+    def pending_blocks(self, group: str, coords: dict) -> list[tuple[int, ...]]:
         """Blocks of ``group`` to compute; damaged finished ones are un-marked first (and
         the coordinates, derived from other groups, written again)."""
         changed = self.changed_inputs(group)
@@ -216,7 +230,7 @@ class Run:
             self.store.write_coords(group, coords, names)
         return sorted(pending)
 
-    def _run_blocks(self, group: str, tasks: list[Task], label: str) -> Counter:
+    def run_blocks(self, group: str, tasks: list[Task], label: str) -> Counter:
         statuses: Counter = Counter()
 
         def finished(task: Task, result: tuple[dict, dict]) -> None:
@@ -249,7 +263,7 @@ def todo_whole(run: Run, stage: str, group: str) -> str | None:
 def todo_blocks(run: Run, stage: str) -> str | None:
     """Why a result stage (raw, scores) must run, or None."""
     store = run.store
-    if store is None or not store.has(f"{stage}/done"):
+    if store is None or not store.has_results(stage):
         return "not run yet"
     changed = run.changed_inputs(stage)
     if changed:
@@ -342,8 +356,8 @@ def stage_instances(run: Run) -> None:
     chunk = (run.cfg.store.block_instances,)
 
     def make():
-        store.create("instances/seed", (n,), chunk, "int64", 0, ("instance",))
-        store.create("instances/spec", (n,), chunk, str, "", ("instance",),
+        store.create(INSTANCE_SEED, (n,), chunk, "int64", 0, ("instance",))
+        store.create(INSTANCE_SPEC, (n,), chunk, str, "", ("instance",),
                      description="instance specs, JSON text")
         store.create_table("instances", ["seed", "spec"])
 
@@ -357,8 +371,8 @@ def stage_instances(run: Run) -> None:
 
 
 def _inputs(run: Run):
-    specs = [str(s) for s in run.store.array("instances/spec")[...]]
-    seeds = run.store.array("instances/seed")[...]
+    specs = [str(s) for s in run.store.instance_specs()]
+    seeds = run.store.instance_seeds()
     return specs, seeds
 
 
@@ -369,7 +383,7 @@ def stage_raw(run: Run) -> None:
         run.say("raw: already complete; nothing to do")
         return
     p = run.domain.n_features
-    coords = {**instance_coord(store.array("instances/seed")[...]),
+    coords = {**instance_coord(store.instance_seeds()),
               **feature_coord(feature_names(run.domain, p))}
     if not store.has_table("raw") or store.missing_arrays("raw"):
         extra = [("tries", (n,), (b,), "int32", 0, ("instance",), {}),
@@ -377,7 +391,7 @@ def stage_raw(run: Run) -> None:
                   {"description": "constraint extracted from the raw solution (NaN: none)"})]
         store.create_results("raw", (n,), (b,), ("instance",), run.domain.steps, extra,
                              coords)
-    pending = run._pending("raw", coords)
+    pending = run.pending_blocks("raw", coords)
     store.forget_stage("raw")
     specs, seeds = _inputs(run)
     tasks = []
@@ -388,8 +402,8 @@ def stage_raw(run: Run) -> None:
                           entries=rows.stop - rows.start, block=(bi,)))
     if len(pending) < -(-n // b):
         run.say(f"raw: resuming, {n - sum(t.entries for t in tasks)} of {n} already done")
-    run._run_blocks("raw", tasks, "raw")
-    feasible = store.array("raw/feasible")[:]
+    run.run_blocks("raw", tasks, "raw")
+    feasible = store.array(result_key("raw", "feasible"))[:]
     run.finish("raw", feasible=int(feasible.sum()))
     run.say(f"raw: RAWPLANNER solved {int(feasible.sum())} of {n} instances")
 
@@ -406,7 +420,7 @@ def stage_constraints(run: Run) -> None:
         candidates = domain.constraints()
     else:
         run.require("raw", "constraints")
-        features = store.array("raw/constraint")[...]
+        features = store.array(RAW_CONSTRAINT)[...]
         extracted = ConstraintSet(features, np.arange(len(features)))
         candidates = domain.constraints(extracted)
     if candidates.m == 0:
@@ -422,9 +436,9 @@ def stage_constraints(run: Run) -> None:
     names = feature_names(domain, p)
 
     def make():
-        store.create("constraints/theta", theta.shape, (bc, p), "float64", np.nan,
+        store.create(THETA, theta.shape, (bc, p), "float64", np.nan,
                      ("constraint", "feature"))
-        store.create("constraints/source_instance", (len(keep),), (bc,), "int64", -1,
+        store.create(SOURCE_INSTANCE, (len(keep),), (bc,), "int64", -1,
                      ("constraint",), description="instance whose raw solution gave it; "
                      "-1: fixed")
         store.write_coords("constraints", feature_coord(names), ["theta", "source_instance"])
@@ -450,15 +464,15 @@ def stage_scores(run: Run) -> None:
     if run.todo("scores") is None:
         run.say(f"scores: already complete ({n} x {m}); nothing to do")
         return
-    coords = {**instance_coord(store.array("instances/seed")[...]),
-              **source_coord(store.array("constraints/source_instance")[...])}
+    coords = {**instance_coord(store.instance_seeds()),
+              **source_coord(store.source_instances())}
     if not store.has_table("scores") or store.missing_arrays("scores"):
         store.create_results("scores", (n, m), (bi, bj), ("instance", "constraint"),
                              run.domain.steps, coords=coords)
-    pending = run._pending("scores", coords)
+    pending = run.pending_blocks("scores", coords)
     store.forget_stage("scores")
     specs, seeds = _inputs(run)
-    theta = store.array("constraints/theta")[...]
+    theta = store.theta()
     tasks = []
     for i, j in pending:
         rows, cols = slice(i * bi, min((i + 1) * bi, n)), slice(j * bj, min((j + 1) * bj, m))
@@ -470,8 +484,8 @@ def stage_scores(run: Run) -> None:
     todo = sum(t.entries for t in tasks)
     if todo < n * m:
         run.say(f"scores: resuming, {n * m - todo} of {n * m} entries already done")
-    statuses = run._run_blocks("scores", tasks, "scores")
-    feasible = store.array("scores/feasible")[...]
+    statuses = run.run_blocks("scores", tasks, "scores")
+    feasible = store.array(result_key("scores", "feasible"))[...]
     run.finish("scores", feasible_fraction=float(feasible.mean()))
     mix = ", ".join(f"{k} {v}" for k, v in statuses.most_common()) or "none this run"
     run.say(f"scores: {n} x {m} complete, {feasible.mean():.1%} feasible (computed now: {mix})")
@@ -488,7 +502,7 @@ def stage_evaluate(run: Run) -> None:
     if reason is not None:
         store.forget_stage("evaluate")  # derived data: replaced as a whole
         store.remove("evaluation")
-    evaluation.evaluate(run)
+    evaluation.evaluate(run.context())
     if reason is not None:
         outputs = {key: f"{digest(store.array(key)[...]):016x}"
                    for key in store.arrays_under("evaluation")}
@@ -543,7 +557,7 @@ def stage_report(run: Run) -> None:
 def stage_solve(run: Run) -> None:
     from pipeline.solve import solve
 
-    solve(run, output_dir(run.plain["solve"]["dir"], "solve"))
+    solve(run.context(), output_dir(run.plain["solve"]["dir"], "solve"))
 
 
 def run_pipeline(cfg, console: Console) -> None:
@@ -584,7 +598,7 @@ def _write_stages(run: Run, names) -> None:
             if not run.writing and name == "evaluate":
                 from pipeline.evaluation import evaluate
 
-                evaluate(run)  # says "already complete" and shows the stored summary
+                evaluate(run.context())  # says "already complete" and shows the stored summary
                 continue
             if not run.writing:
                 run.say(f"{name}: already complete; nothing to do")

@@ -18,11 +18,12 @@ Layout (a contract: users open it with ``xarray.open_zarr(path, group=...)`` or
                       best_score; time_grid; eligible; optimal_score
     integrity/        per block group a table of chunk digests (pipeline/integrity.py)
 
-Who writes what (DESIGN.md §5): workers compute and return arrays; only the coordinating
-process writes the store (arrays, ``done`` masks, integrity records, attributes).  A block
-is written in the order data chunks, integrity row, ``done``: a run killed in between
-leaves a block that is simply computed again.  Every chunk is written even when it holds
-only fill values, carries a CRC32C checksum, and has its values' digest recorded.
+Who writes what (docs/architecture.md, "The store"): workers compute and return arrays;
+only the coordinating process writes the store (arrays, ``done`` masks, integrity records,
+attributes).  A block is written in the order data chunks, integrity row, ``done``: a run
+killed in between leaves a block that is simply computed again.  Every chunk is written
+even when it holds only fill values, carries a CRC32C checksum, and has its values' digest
+recorded.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ import warnings
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import zarr
@@ -72,9 +74,45 @@ RESULT_COLUMNS = {
     "step": Column("int8", -1),  # index into the domain's steps of the one that failed; -1: none
 }
 
+#: Array keys of the layout above; other modules use these (or ``result_key``), never literals.
+INSTANCE_SEED = "instances/seed"
+INSTANCE_SPEC = "instances/spec"
+RAW_CONSTRAINT = "raw/constraint"
+THETA = "constraints/theta"
+SOURCE_INSTANCE = "constraints/source_instance"
+
+
+def result_key(group: str, name: str) -> str:
+    """The key of result array ``name`` (a RESULT_COLUMNS name or ``done``) of ``group``
+    (``raw`` or ``scores``)."""
+    return f"{group}/{name}"
+
+
+def domain_spec_of(config: dict) -> dict:
+    """The {"name", "config", "planner"} workers receive, from a plain run config (as a run
+    resolves it, and as the store's ``config`` attribute holds it)."""
+    domain = dict(config["domain"])
+    return {"name": domain.pop("name"), "config": domain, "planner": config["planner"]}
+
+
 #: The block axes of each block group.
 BLOCK_DIMS = {"instances": ("instance",), "raw": ("instance",),
               "constraints": ("constraint",), "scores": ("instance", "constraint")}
+
+
+class ScoreMatrix(NamedTuple):
+    """A store's score matrix as box_core takes it."""
+
+    scores: np.ndarray  # (n, m): -(path length) where feasible, 0 elsewhere
+    feasible: np.ndarray  # (n, m) bool
+    times: np.ndarray  # (n, m) seconds
+    theta: np.ndarray  # (m, p): the constraints' features
+
+
+def path_scores(feasible, length) -> np.ndarray:
+    """Scores as box_core takes them: -(path length) where feasible, 0 elsewhere (the
+    failure value replaces those entries at analysis time)."""
+    return np.where(feasible, -np.nan_to_num(length, nan=0.0), 0.0)
 
 
 def block_region(block: tuple[int, ...], chunks: tuple[int, ...]) -> tuple[slice, ...]:
@@ -527,6 +565,52 @@ class ScoreStore:
                       if isinstance(self.root[f"{group}/{path}"], zarr.Array))
 
     # -- the done masks --------------------------------------------------------------------
+    def domain_spec(self) -> dict:
+        """The {"name", "config", "planner"} the store was made with (what workers receive)."""
+        config = self.attrs.get("config") or {}
+        if "name" not in (config.get("domain") or {}) or "planner" not in config:
+            raise StoreError(f"{self.path}: the store's attributes hold no domain config "
+                             "(damaged store?)")
+        return domain_spec_of(config)
+
+    def instance_seeds(self) -> np.ndarray:
+        return self.array(INSTANCE_SEED)[...]
+
+    def instance_specs(self) -> np.ndarray:
+        """The instances' specs (JSON text)."""
+        return self.array(INSTANCE_SPEC)[...]
+
+    def has_results(self, group: str) -> bool:
+        """Whether result group ``group`` (``raw`` or ``scores``) has been created."""
+        return self.has(result_key(group, "done"))
+
+    def source_instances(self) -> np.ndarray:
+        """(m,) the instance whose raw solution gave each constraint; -1: fixed."""
+        return self.array(SOURCE_INSTANCE)[...]
+
+    def theta(self) -> np.ndarray:
+        """(m, p) the constraints' features."""
+        return self.array(THETA)[...]
+
+    def score_matrix(self, rows=None) -> ScoreMatrix:
+        """The score matrix as box_core wants it.  With ``rows`` (indices or a mask), only
+        those rows, unchecked (a partial store's complete rows); without, all rows, and a
+        StoreError when an entry is missing or a feasible entry has no path length."""
+        def read(key):
+            values = self.array(key)[...]
+            return values if rows is None else values[rows]
+
+        feasible, length, times = (read(result_key("scores", name))
+                                   for name in ("feasible", "length", "time"))
+        if rows is None and np.isnan(times).any():
+            raise StoreError(f"{self.path}: {result_key('scores', 'time')} has missing "
+                             "entries; is stage scores complete?")
+        scores = path_scores(feasible, length)
+        if rows is None and np.isnan(length[feasible]).any():
+            raise StoreError(f"{self.path}: a feasible entry has no path length (damaged "
+                             "store?)")
+        return ScoreMatrix(scores, feasible, times, self.theta())
+
     def done(self, group: str) -> np.ndarray:
         return self.array(f"{group}/done")[...]
 

@@ -3,8 +3,8 @@
 Tasks are pure functions of plain inputs (the domain spec, the block's instance specs and
 seeds, its θ rows): they never open the store, so workers need no access to it, and a
 retried or duplicated task returns exactly the same values.  Only the coordinating process
-writes what they return (DESIGN.md §5).  The domain (and with it any simulator client) is
-built once per worker process and cached.
+writes what they return (docs/architecture.md, "The store").  The domain (and with it any
+simulator client) is built once per worker process and cached.
 """
 
 from __future__ import annotations

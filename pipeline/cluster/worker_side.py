@@ -18,8 +18,8 @@ from distributed.diagnostics.plugin import NannyPlugin
 #: Packages whose code must be identical on the coordinator and every worker.
 PACKAGES = ("pipeline", "box_core")
 
-#: Dask settings measured to cost planning throughput (benchmarks/bench_pipeline.py,
-#: DESIGN.md §5): the statistical profiler and the 20 ms event-loop tick take the GIL from
+#: Dask settings measured to cost planning throughput (benchmarks/bench_pipeline.py): the
+#: statistical profiler and the 20 ms event-loop tick take the GIL from
 #: the planning thread (5-10 %).
 TUNED_CONFIG = {"distributed.worker.profile.enabled": False,
                 "distributed.admin.tick.interval": "1s"}

@@ -7,19 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.evaluation import RAWPLANNER, load_matrix, own_constraints
-from pipeline.store import ScoreStore, StoreError
-
-
-def domain_spec(store: ScoreStore) -> dict:
-    """The {"name", "config", "planner"} a store was made with (what workers receive)."""
-    config = store.attrs.get("config") or {}
-    domain = dict(config.get("domain") or {})
-    if "name" not in domain or "planner" not in config:
-        raise StoreError(f"{store.path}: the store's attributes hold no domain config "
-                         "(damaged store?)")
-    name = domain.pop("name")
-    return {"name": name, "config": domain, "planner": config["planner"]}
+from pipeline.evaluation import RAWPLANNER, own_constraints
+from pipeline.store import ScoreStore, StoreError, result_key
 
 
 @dataclass(eq=False)
@@ -90,7 +79,7 @@ def load(path) -> StoreResults:
     if info is None:
         raise StoreError(f"{store.path} has no evaluation yet; run stage=evaluate (or "
                          "stage=all) on it first")
-    scores, feasible, times, theta = load_matrix(store)
+    scores, feasible, times, theta = store.score_matrix()
     evaluated = [line["name"] for line in info["summary"]["selectors"]]
     fft, best, order = {}, {}, {}
     for name in evaluated:
@@ -100,18 +89,21 @@ def load(path) -> StoreResults:
             order[name] = store.array(f"evaluation/{name}/order")[...]
     has_raw = store.stage_info("raw") is not None
     n = scores.shape[0]
+
+    def raw(name, missing):
+        return store.array(result_key("raw", name))[...] if has_raw else missing
     attrs = store.attrs
     return StoreResults(
         path=store.path,
         config_hash=attrs.get("config_hash", "?"),
         seed=int(attrs.get("config", {}).get("seed", 0)),
-        spec=domain_spec(store),
+        spec=store.domain_spec(),
         scores=scores, feasible=feasible, times=times, theta=theta,
-        instance_specs=store.array("instances/spec")[...],
-        instance_seeds=store.array("instances/seed")[...],
-        raw_feasible=store.array("raw/feasible")[...] if has_raw else np.zeros(n, bool),
-        raw_time=store.array("raw/time")[...] if has_raw else np.full(n, np.nan),
-        raw_length=store.array("raw/length")[...] if has_raw else np.full(n, np.nan),
+        instance_specs=store.instance_specs(),
+        instance_seeds=store.instance_seeds(),
+        raw_feasible=raw("feasible", np.zeros(n, bool)),
+        raw_time=raw("time", np.full(n, np.nan)),
+        raw_length=raw("length", np.full(n, np.nan)),
         summary=info["summary"], settings=info["settings"],
         failure_value=float(info["failure_value"]),
         time_grid=store.array("evaluation/time_grid")[...],
