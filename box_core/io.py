@@ -26,6 +26,7 @@ DEFAULT_NAMES: dict[str, tuple[str, ...]] = {
     "times": ("times", "time"),
     "feasible": ("feasible",),
     "features": ("features", "theta"),
+    "forbidden": ("forbidden",),
 }
 
 SUFFIXES = (".npz", ".mat")
@@ -37,6 +38,9 @@ class MatrixFile:
     times: np.ndarray | None = None
     feasible: np.ndarray | None = None
     features: np.ndarray | None = None
+    #: (n x m) bool: columns row i may not try in leave-one-out (``box export`` writes the
+    #: constraints extracted from row i's own raw solution here)
+    forbidden: np.ndarray | None = None
 
 
 def load_matrix(
@@ -46,6 +50,7 @@ def load_matrix(
     times: str | None = None,
     feasible: str | None = None,
     features: str | None = None,
+    forbidden: str | None = None,
 ) -> MatrixFile:
     """Read a score matrix and its optional companions from ``path``.
 
@@ -64,7 +69,8 @@ def load_matrix(
         raise ValueError(f"{path}: unsupported format {suffix or '(none)'}; use .npz or .mat")
     if path.stat().st_size == 0:
         raise ValueError(f"{path}: cannot read as {suffix} (the file is empty)")
-    wanted = {"scores": scores, "times": times, "feasible": feasible, "features": features}
+    wanted = {"scores": scores, "times": times, "feasible": feasible, "features": features,
+              "forbidden": forbidden}
     with _opened(path, suffix) as arrays:
         chosen = {role: _pick(path, arrays, role, name) for role, name in wanted.items()}
         if chosen["scores"] is None:

@@ -78,7 +78,8 @@ def evaluate(
     if not names:
         names = ["box", "static", "rand"] + (["doo"] if data.features is not None else [])
     _evaluate_matrix(data, file, names, k=k, seed=seed, c=c, failure_rule=failure_rule,
-                     overhead=overhead, as_json=as_json, forbidden=forbidden)
+                     overhead=overhead, as_json=as_json,
+                     forbidden=data.forbidden if forbidden is None else forbidden)
 
 
 def _store_matrix(path: Path) -> tuple[MatrixFile, np.ndarray | None]:

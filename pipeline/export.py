@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.evaluation import own_constraints
 from pipeline.store import ScoreStore, StoreError, path_scores, result_key
 
 FORMATS = ("npz", "csv")
@@ -25,7 +26,7 @@ def _arrays(store: ScoreStore) -> dict[str, np.ndarray]:
 
     feasible = scores("feasible") & done
     length = scores("length")
-    return {
+    arrays = {
         "scores": path_scores(feasible, length),  # what ``box evaluate`` reads
         "feasible": feasible,
         "times": scores("time"),
@@ -38,6 +39,10 @@ def _arrays(store: ScoreStore) -> dict[str, np.ndarray]:
         "done": done,
         "instance_seed": store.instance_seeds(),
     }
+    own = own_constraints(store)
+    if own is not None:  # what ``box evaluate`` hides from each row, as stage=evaluate does
+        arrays["forbidden"] = own
+    return arrays
 
 
 def metadata(store: ScoreStore, arrays: dict) -> dict:
@@ -52,7 +57,9 @@ def metadata(store: ScoreStore, arrays: dict) -> dict:
             "steps": (store.array(STEP).attrs.get("flag_meanings", "").split()
                       if store.has(STEP) else []),
             "score": "-(path length) where feasible; 0 where infeasible or not computed",
-            "times": "seconds per planning call; NaN where not computed"}
+            "times": "seconds per planning call; NaN where not computed",
+            "forbidden": "where present: entry (i, j) is a constraint extracted from row i's own "
+                         "raw solution, hidden from row i in leave-one-out"}
 
 
 #: What a csv export folder holds (``--overwrite`` replaces a folder holding no more).
