@@ -37,6 +37,7 @@ from pipeline.domains.mobile_world import (
     MobileScene,
     Table,
     TablePlacer,
+    check_mobile_config,
     render_two_panels,
     sample_base_pose,
 )
@@ -81,9 +82,7 @@ class GraspBaseDomain(Domain):
     def __init__(self, config: GraspBaseConfig, planner):
         super().__init__(config, planner)
         c = config
-        if c.obstacles < 0 or c.ik_restarts < 1 or c.pregrasp_offset < 0:
-            raise ValueError("domain: need obstacles >= 0, ik_restarts >= 1 and "
-                             "pregrasp_offset >= 0")
+        check_mobile_config(c)
         if not c.reach_radius > 0 or c.raw_base_samples < 1:
             raise ValueError("domain: need reach_radius > 0 and raw_base_samples >= 1")
         self.grasps = [g for g in grasp_set() if g.arm == 0]

@@ -11,7 +11,12 @@ import numpy as np
 from pipeline.domains.base import Domain, RawSearch, constraint_row
 from pipeline.domains.geometry import rectangle, sample_obstacles
 from pipeline.domains.ik import IKOutcome, solve_ik
-from pipeline.domains.mobile_world import OBSTACLE_RGBA, TablePlacer, render_two_panels
+from pipeline.domains.mobile_world import (
+    OBSTACLE_RGBA,
+    TablePlacer,
+    check_mobile_config,
+    render_two_panels,
+)
 from pipeline.domains.pick_place import raw
 from pipeline.domains.pick_place import steps as plan_steps
 from pipeline.domains.pick_place.scene import PickPlaceScene
@@ -53,9 +58,7 @@ class PickPlaceDomain(Domain):
     def __init__(self, config: PickPlaceConfig, planner):
         super().__init__(config, planner)
         c = config
-        if c.obstacles < 0 or c.ik_restarts < 1 or c.pregrasp_offset < 0:
-            raise ValueError("domain: need obstacles >= 0, ik_restarts >= 1 and "
-                             "pregrasp_offset >= 0")
+        check_mobile_config(c)
         if not c.rod_lengths or any(not 0.1 <= v <= 1.2 for v in c.rod_lengths):
             raise ValueError("domain.rod_lengths: need one or more lengths in [0.1, 1.2] m")
         if not 0.6 <= c.door_width <= ROOMS[3] - ROOMS[2] - 0.2:
