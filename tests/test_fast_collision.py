@@ -157,6 +157,49 @@ def test_base_checker_with_a_held_rod_answers_as_the_exact_one(carrying):
     assert isinstance(model, FC.CertifiedRobot) and model.checker.certified
     _same_answers(model.check, exact.check, _edges(np.random.default_rng(7), lo, hi, 40, 0.04))
     assert model.checker.stats["exact"] < model.checker.stats["rows"] / 5
+    assert model.checker.stats["proved"] > 0  # the platform ran into furniture: no pybullet
+
+
+def test_a_proven_box_collision_is_one_for_pybullet(lone_arm):
+    """Boxes placed at a chosen depth of interpenetration (bisection along a random
+    direction, random orientations): wherever the separating-axis depth reaches the proof
+    depth pybullet reports penetration, and wherever it is clearly negative, none."""
+    from pipeline.sim import collide
+
+    client, _ = lone_arm
+    rng = np.random.default_rng(12)
+    proved = 0
+    for trial in range(400):
+        ha, hb = rng.uniform(0.01, 0.35, 3), rng.uniform(0.01, 0.35, 3)
+        qa, qb = (q / np.linalg.norm(q) for q in rng.normal(size=(2, 4)))
+        Ra, Rb = FC._matrices(np.stack([qa, qb]))
+        u = rng.normal(size=3)
+        u /= np.linalg.norm(u)
+        target = rng.uniform(-0.004, 0.004)
+        lo, hi = 0.0, 2.0
+        for _ in range(50):
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if collide._box_overlap(
+                np.zeros(3), Ra, ha, mid * u, Rb, hb) > target else (lo, mid)
+        depth = collide._box_overlap(np.zeros(3), Ra, ha, lo * u, Rb, hb)
+        a = add_box(client, 2 * ha, (5.0, 5.0, 5.0), movable=True)
+        b = add_box(client, 2 * hb, (5.0, 5.0, 5.0))
+        try:
+            pb.resetBasePositionAndOrientation(a, [5.0, 5.0, 5.0], qa.tolist(),
+                                               physicsClientId=client)
+            pb.resetBasePositionAndOrientation(b, (np.array([5.0, 5.0, 5.0]) + lo * u).tolist(),
+                                               qb.tolist(), physicsClientId=client)
+            pb.performCollisionDetection(physicsClientId=client)
+            penetrates = any(p[8] < 0 for p in pb.getContactPoints(a, b, physicsClientId=client))
+        finally:
+            pb.removeBody(a, physicsClientId=client)
+            pb.removeBody(b, physicsClientId=client)
+        if depth >= FC.PROOF_DEPTH:
+            proved += 1
+            assert penetrates, (trial, depth)
+        elif depth < -FC.PROOF_DEPTH:
+            assert not penetrates, (trial, depth)
+    assert proved > 100
 
 
 def test_a_scene_it_cannot_model_is_checked_exactly(lone_arm):

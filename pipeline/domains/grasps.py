@@ -25,6 +25,12 @@ class Grasp:
     def features(self) -> np.ndarray:
         return np.array([self.arm, *self.approach, self.rotation, self.depth])
 
+    @functools.cached_property
+    def hand(self) -> np.ndarray:
+        """The TCP's rotation in the object frame (:func:`hand_orientation`), computed once
+        per grasp: every planning call with this grasp needs it."""
+        return hand_orientation(self.approach, self.rotation)
+
 
 def grasp_set() -> list[Grasp]:
     """The 162 constraints of grasp_arm: 2 arms × (9 approaches × 3 rotations × 3 depths);
@@ -64,4 +70,4 @@ def pregrasp_pose(target: Box, g: Grasp, offset: float) -> tuple[np.ndarray, np.
     R_obj = rot_z(target.yaw)
     approach = R_obj @ g.approach
     pre = np.asarray(target.position) + approach * (g.depth - offset)
-    return pre, quaternion(R_obj @ hand_orientation(g.approach, g.rotation))
+    return pre, quaternion(R_obj @ g.hand)

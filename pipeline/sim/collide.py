@@ -3,8 +3,11 @@ boxes against boxes (separating axes), one state after another with an early exi
 
 Everything here answers one question per configuration: could the robot touch anything?
 False is a proof (the robot's spheres and boxes cover its geometry, see
-:mod:`pipeline.sim.spheres`); True only means "ask pybullet".  The kernels are compiled
-with numba (``cache=True``: compiled once per installation, then loaded in about 0.1 s).
+:mod:`pipeline.sim.spheres`); True only means "ask pybullet".  One kernel answers the
+opposite question where geometry is exact on both sides (:func:`box_hit`: a box the robot
+carries, such as its platform, deep inside a box of the world), a proof of collision.
+The kernels are compiled with numba (``cache=True``: compiled once per installation, then
+loaded in about 0.1 s).
 
 Layouts.  A *frame* is a 3 × 4 array [R | t].  The robot is a list of sphere *groups*
 (the spheres of one link, or of a held object), each riding on one frame, with a
@@ -101,6 +104,69 @@ def _box_box(ca, Ra, ha, cb, Rb, hb):  # pragma: no cover (compiled)
             if abs(t[i2] * Rm[i1, j] - t[i1] * Rm[i2, j]) > ra + rb:
                 return False
     return True
+
+
+@njit(cache=True)
+def _box_overlap(ca, Ra, ha, cb, Rb, hb):  # pragma: no cover (compiled)
+    """How deep two boxes interpenetrate: the least overlap of their projections on the 15
+    separating axes (unit length; edge axes of nearly parallel edges, which the face axes
+    stand in for, are left out).  Negative when an axis separates them."""
+    Rm = np.empty((3, 3))
+    Am = np.empty((3, 3))
+    t = np.empty(3)
+    for i in range(3):
+        for j in range(3):
+            Rm[i, j] = Ra[0, i] * Rb[0, j] + Ra[1, i] * Rb[1, j] + Ra[2, i] * Rb[2, j]
+            Am[i, j] = abs(Rm[i, j])
+    d0, d1, d2 = cb[0] - ca[0], cb[1] - ca[1], cb[2] - ca[2]
+    for i in range(3):
+        t[i] = d0 * Ra[0, i] + d1 * Ra[1, i] + d2 * Ra[2, i]
+    least = np.inf
+    for i in range(3):
+        least = min(least, ha[i] + hb[0] * Am[i, 0] + hb[1] * Am[i, 1] + hb[2] * Am[i, 2]
+                    - abs(t[i]))
+    for j in range(3):
+        least = min(least, ha[0] * Am[0, j] + ha[1] * Am[1, j] + ha[2] * Am[2, j] + hb[j]
+                    - abs(t[0] * Rm[0, j] + t[1] * Rm[1, j] + t[2] * Rm[2, j]))
+    for i in range(3):
+        i1, i2 = (i + 1) % 3, (i + 2) % 3
+        for j in range(3):
+            norm = math.sqrt(max(0.0, 1.0 - Rm[i, j] * Rm[i, j]))  # |a_i × b_j|
+            if norm < 1e-6:
+                continue
+            j1, j2 = (j + 1) % 3, (j + 2) % 3
+            ra = ha[i1] * Am[i2, j] + ha[i2] * Am[i1, j]
+            rb = hb[j1] * Am[i, j2] + hb[j2] * Am[i, j1]
+            least = min(least, (ra + rb - abs(t[i2] * Rm[i1, j] - t[i1] * Rm[i2, j])) / norm)
+    return least
+
+
+@njit(cache=True)
+def box_hit(frames, n, rbox_frame, rbox_T, rbox_solid, box_c, box_R, box_h, box_r,
+            depth):  # pragma: no cover (compiled)
+    """Does one of the robot's boxes (their true half extents ``rbox_solid``) reach at
+    least ``depth`` into one of the world's boxes at configuration n?  True is a proof of
+    collision: box against box is exact geometry, for pybullet too."""
+    Rw = np.empty((3, 3))
+    cw = np.empty(3)
+    p = np.empty(3)
+    for b in range(rbox_T.shape[0]):
+        F = frames[n, rbox_frame[b]]
+        for i in range(3):
+            for j in range(3):
+                Rw[i, j] = (F[i, 0] * rbox_T[b, 0, j] + F[i, 1] * rbox_T[b, 1, j]
+                            + F[i, 2] * rbox_T[b, 2, j])
+            p[i] = rbox_T[b, i, 3]
+        _apply(F, p, cw)
+        rb = math.sqrt(rbox_solid[b, 0] ** 2 + rbox_solid[b, 1] ** 2 + rbox_solid[b, 2] ** 2)
+        for m in range(box_c.shape[0]):
+            dx, dy, dz = cw[0] - box_c[m, 0], cw[1] - box_c[m, 1], cw[2] - box_c[m, 2]
+            reach = rb + box_r[m]
+            if dx * dx + dy * dy + dz * dz >= reach * reach:
+                continue
+            if _box_overlap(cw, Rw, rbox_solid[b], box_c[m], box_R[m], box_h[m]) >= depth:
+                return True
+    return False
 
 
 @njit(cache=True)

@@ -6,7 +6,10 @@ checks the rows in order, stops at the first colliding one and says how many it
 checked.  It first runs the compiled pre-check (:mod:`pipeline.sim.collide`) on all rows
 at once.  The robot's spheres cover its collision geometry, so a row the pre-check clears
 is collision-free for pybullet too; the other rows are confirmed with the exact check, in
-order, and the first confirmed collision ends the call.  Hence the answer *and the count*
+order, and the first confirmed collision ends the call.  A row where a box the robot
+carries (its platform, a held object) reaches deep into a box of the world needs no
+confirmation: box against box is exact geometry on both sides, so that row is a proven
+collision.  Hence the answer *and the count*
 equal the exact checker's: planners take the same branches and find the same paths, and
 stored entries replay under either setting.
 
@@ -34,6 +37,9 @@ from pipeline.sim import collide, spheres, wrist
 MARGIN = 0.0025
 #: extra clearance (metres) on the boxes that ride on the robot (platform, held object)
 BOX_MARGIN = 0.0025
+#: how deep a robot box must reach into a world box for the pair to be a proven collision
+#: (pybullet's box-against-box contacts are exact; this leaves room for rounding)
+PROOF_DEPTH = 0.001
 #: base motions: parts of the robot at least this far apart stay apart (pybullet's
 #: distances of rigidly moved parts agree far below this)
 INTERNAL_CLEARANCE = 1e-4
@@ -176,6 +182,7 @@ class SphereRobot:
     rbox_h: np.ndarray
     rbox_pair_b: np.ndarray  # robot box rbox_pair_b[k] is tested against group
     rbox_pair_g: np.ndarray  # rbox_pair_g[k]
+    rbox_solid: np.ndarray  # the robot boxes' true half extents (rbox_h has the margin)
 
     def __post_init__(self):
         self.rbox_r = np.linalg.norm(self.rbox_h, axis=1)
@@ -184,8 +191,8 @@ class SphereRobot:
     def build(cls, groups, pairs=(), boxes=(), box_pairs=()) -> SphereRobot:
         """``groups``: (frame, centres (K, 3), radii (K,), tested against the world);
         ``pairs``: group index pairs tested against each other; ``boxes``: (frame,
-        4 × 4 pose in it, half extents); ``box_pairs``: (box, group) tested against each
-        other."""
+        4 × 4 pose in it, true half extents; tested with BOX_MARGIN added);
+        ``box_pairs``: (box, group) tested against each other."""
         groups = list(groups) or [(0, np.zeros((1, 3)), np.array([-1.0]), False)]
         lo = np.cumsum([0] + [len(g[2]) for g in groups])
         bounds = [_bounding(c, r) for _, c, r, _ in groups]
@@ -198,9 +205,10 @@ class SphereRobot:
                    np.concatenate([g[1] for g in groups]), np.concatenate([g[2] for g in groups]),
                    pa, pbb, np.array([b[0] for b in boxes], dtype=np.int64),
                    np.array([b[1][:3] for b in boxes]).reshape(-1, 3, 4),
-                   np.array([b[2] for b in boxes]).reshape(-1, 3),
+                   np.array([b[2] for b in boxes]).reshape(-1, 3) + BOX_MARGIN,
                    np.array([p[0] for p in box_pairs], dtype=np.int64),
-                   np.array([p[1] for p in box_pairs], dtype=np.int64))
+                   np.array([p[1] for p in box_pairs], dtype=np.int64),
+                   np.array([b[2] for b in boxes], float).reshape(-1, 3))
 
     def first(self, frames: np.ndarray, world: World, start: int = 0,
               pre: np.ndarray | None = None) -> int:
@@ -215,6 +223,14 @@ class SphereRobot:
             self.rbox_pair_g,
             world.box_c, world.box_R, world.box_h, world.box_r, world.og_c, world.og_r,
             world.og_lo, world.og_hi, world.sph_c, world.sph_r))
+
+    def surely_hits(self, frames: np.ndarray, n: int, world: World) -> bool:
+        """Does row n of ``frames`` certainly collide (a robot box deep in a world box)?"""
+        if not len(self.rbox_solid) or not len(world.box_c):
+            return False
+        return bool(collide.box_hit(frames, n, self.rbox_frame, self.rbox_T, self.rbox_solid,
+                                    world.box_c, world.box_R, world.box_h, world.box_r,
+                                    PROOF_DEPTH))
 
     def uncertain(self, frames: np.ndarray, world: World,
                   pre: np.ndarray | None = None) -> np.ndarray:
@@ -261,7 +277,7 @@ class SphereChecker:
         self.robot, self.world, self.frames, self.exact = robot, world, frames, exact
         self.certified = certified and robot is not None and world is not None
         self.also = also  # more rows to send to ``exact`` (say, the wrist table's)
-        self.stats = {"rows": 0, "exact": 0}
+        self.stats = {"rows": 0, "exact": 0, "proved": 0}
 
     def _pre(self, states: np.ndarray) -> np.ndarray:
         if self.also is None:
@@ -289,6 +305,9 @@ class SphereChecker:
         frames, pre = self.frames(states), self._pre(states)
         k = self.robot.first(frames, self.world, 0, pre)
         while k < n:
+            if self.robot.surely_hits(frames, k, self.world):
+                self.stats["proved"] += 1
+                return False, k + 1
             self.stats["exact"] += 1
             if self.exact(states[k]):
                 return False, k + 1
@@ -316,7 +335,7 @@ def _held_box(client: int, held: int, rel: np.ndarray, frame: int):
     if len(shapes) != 1 or shapes[0][2] != pb.GEOM_BOX:
         return None
     T = rel @ _frame(shapes[0][5], shapes[0][6])
-    return frame, T, np.asarray(shapes[0][3], float) / 2 + BOX_MARGIN
+    return frame, T, np.asarray(shapes[0][3], float) / 2
 
 
 def wrist_table(ignored_pairs) -> wrist.WristTable:
@@ -397,7 +416,7 @@ def base_checker(client: int, arm_body: int, platform: int, base_pose: np.ndarra
     centres = model.world(arm)[0] @ to_base[:3, :3].T + to_base[:3, 3]
     groups = [(0, centres[model.links == link], model.radii[model.links == link], link != -1)
               for link in spheres.LINKS]
-    boxes = [(0, to_base @ box[0], box[1] + BOX_MARGIN)]
+    boxes = [(0, to_base @ box[0], box[1])]
     if held is not None:
         box = _held_box(client, held[0], held[1], 0)
         if box is None:
