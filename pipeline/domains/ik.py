@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.planning import Status
-from pipeline.sim.panda import REACH
+from pipeline.sim.panda import REACH, ik_starts
 
 
 @dataclass(frozen=True)
@@ -25,8 +25,8 @@ class IKOutcome:
 def solve_ik(arm, position, orientation, rng_seed, restarts: int) -> IKOutcome:
     """A collision-free configuration of ``arm`` (anything with ``shoulder`` and ``ik``:
     a Panda, a MobilePanda's) with its TCP at ``position``/``orientation``; the random
-    restarts draw from ``numpy.random.default_rng(rng_seed)``, made only when IK runs
-    (making a Generator costs more than the reach check that often ends the call).
+    restarts draw from ``numpy.random.default_rng(rng_seed)``, made only when a restart
+    needs it (:func:`pipeline.sim.panda.ik_starts`).
 
     Beyond REACH of the shoulder no solution can exist: NO_IK without a single IK call.
     Otherwise NO_IK when no restart reached the pose, GOAL_IN_COLLISION when every one that
@@ -34,8 +34,7 @@ def solve_ik(arm, position, orientation, rng_seed, restarts: int) -> IKOutcome:
     """
     if np.linalg.norm(np.asarray(position) - arm.shoulder) > REACH:
         return IKOutcome(None, 0, Status.NO_IK)
-    q, checks, reached = arm.ik(position, orientation, np.random.default_rng(rng_seed),
-                                restarts)
+    q, checks, reached = arm.ik(position, orientation, ik_starts(rng_seed, restarts))
     if q is not None:
         return IKOutcome(q, checks, Status.OK)
     return IKOutcome(None, checks, Status.GOAL_IN_COLLISION if reached else Status.NO_IK)

@@ -4,8 +4,9 @@ boxes against boxes (separating axes), one state after another with an early exi
 Everything here answers one question per configuration: could the robot touch anything?
 False is a proof (the robot's spheres and boxes cover its geometry, see
 :mod:`pipeline.sim.spheres`); True only means "ask pybullet".  One kernel answers the
-opposite question where geometry is exact on both sides (:func:`box_hit`: a box the robot
-carries, such as its platform, deep inside a box of the world), a proof of collision.
+opposite question, a proof of collision: a box the robot carries (its platform, a held
+object) deep inside a box of the world (:func:`box_hit`: exact geometry on both sides), or
+a sphere inside a link's hull deep inside one (:func:`sphere_hit`).
 The kernels are compiled with numba (``cache=True``: compiled once per installation, then
 loaded in about 0.1 s).
 
@@ -165,6 +166,26 @@ def box_hit(frames, n, rbox_frame, rbox_T, rbox_solid, box_c, box_R, box_h, box_
             if dx * dx + dy * dy + dz * dz >= reach * reach:
                 continue
             if _box_overlap(cw, Rw, rbox_solid[b], box_c[m], box_R[m], box_h[m]) >= depth:
+                return True
+    return False
+
+
+@njit(cache=True)
+def sphere_hit(frames, n, in_frame, in_c, in_r, box_c, box_R, box_h, box_r,
+               depth):  # pragma: no cover (compiled)
+    """Does one of the robot's inner spheres (each inside its link's collision hull) reach
+    at least ``depth`` into one of the world's boxes at configuration n?  True is a proof
+    of collision: the hull holding the sphere reaches at least as deep."""
+    p = np.empty(3)
+    for s in range(in_c.shape[0]):
+        _apply(frames[n, in_frame[s]], in_c[s], p)
+        reach = in_r[s] - depth
+        for m in range(box_c.shape[0]):
+            dx, dy, dz = p[0] - box_c[m, 0], p[1] - box_c[m, 1], p[2] - box_c[m, 2]
+            far = reach + box_r[m]
+            if dx * dx + dy * dy + dz * dz >= far * far:
+                continue
+            if _sphere_box(p, reach, box_c[m], box_R[m], box_h[m]):
                 return True
     return False
 

@@ -119,7 +119,6 @@ class World:
         nor a Panda."""
         boxes, halves, bodies, centres, radii = [], [], [], [np.zeros((0, 3))], [np.zeros(0)]
         groups = []
-        model = spheres.panda_spheres(MARGIN)
         for i in range(pb.getNumBodies(physicsClientId=client)):
             body = pb.getBodyUniqueId(i, physicsClientId=client)
             if body in skip:
@@ -132,15 +131,12 @@ class World:
                 halves.append(shapes[0][3])
                 bodies.append(body)
             elif _is_panda(client, body):
-                q = arm_state(client, body)[None]
-                c = model.world(_arm_frames_fn(base_link_frame(client, body))(q))[0]
+                c, r, parts = _panda_obstacle(tuple(arm_state(client, body)),
+                                              tuple(base_link_frame(client, body)[:3].ravel()))
                 first = sum(len(r) for r in radii)
-                for link in spheres.LINKS:
-                    idx = np.flatnonzero(model.links == link)
-                    groups.append((first + idx[0], first + idx[-1] + 1,
-                                   *_bounding(c[idx], model.radii[idx])))
+                groups += [(first + lo, first + hi, gc, gr) for lo, hi, gc, gr in parts]
                 centres.append(c)
-                radii.append(model.radii)
+                radii.append(r)
             else:
                 return None
         R = _matrices(np.array([b[1] for b in boxes]).reshape(-1, 4))
@@ -155,6 +151,21 @@ class World:
                    np.array([g[1] for g in groups], dtype=np.int64),
                    np.array([g[2] for g in groups]).reshape(-1, 3),
                    np.array([g[3] for g in groups]))
+
+
+@functools.lru_cache(maxsize=16)
+def _panda_obstacle(q: tuple, base: tuple):
+    """Another Panda (joint state ``q``, base link frame ``base``: 3 × 4, flattened) as
+    obstacle spheres: (centres, radii, per link (first, end, bounding centre and
+    radius)).  Remembered: the other arm of a scene stands still between planning calls."""
+    model = spheres.panda_spheres(MARGIN)
+    frame = np.vstack([np.reshape(base, (3, 4)), [0.0, 0.0, 0.0, 1.0]])
+    c = model.world(_arm_frames_fn(frame)(np.array([q])))[0]
+    parts = []
+    for link in spheres.LINKS:
+        idx = np.flatnonzero(model.links == link)
+        parts.append((idx[0], idx[-1] + 1, *_bounding(c[idx], model.radii[idx])))
+    return c, model.radii, tuple(parts)
 
 
 def _bounding(centres: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, float]:
@@ -183,16 +194,20 @@ class SphereRobot:
     rbox_pair_b: np.ndarray  # robot box rbox_pair_b[k] is tested against group
     rbox_pair_g: np.ndarray  # rbox_pair_g[k]
     rbox_solid: np.ndarray  # the robot boxes' true half extents (rbox_h has the margin)
+    in_frame: np.ndarray  # inner spheres (inside the collision hulls): frame,
+    in_c: np.ndarray  # centre in that frame,
+    in_r: np.ndarray  # radius
 
     def __post_init__(self):
         self.rbox_r = np.linalg.norm(self.rbox_h, axis=1)
 
     @classmethod
-    def build(cls, groups, pairs=(), boxes=(), box_pairs=()) -> SphereRobot:
+    def build(cls, groups, pairs=(), boxes=(), box_pairs=(), inner=None) -> SphereRobot:
         """``groups``: (frame, centres (K, 3), radii (K,), tested against the world);
         ``pairs``: group index pairs tested against each other; ``boxes``: (frame,
         4 × 4 pose in it, true half extents; tested with BOX_MARGIN added);
-        ``box_pairs``: (box, group) tested against each other."""
+        ``box_pairs``: (box, group) tested against each other; ``inner``: (frames,
+        centres, radii) of spheres inside the robot's collision geometry, or None."""
         groups = list(groups) or [(0, np.zeros((1, 3)), np.array([-1.0]), False)]
         lo = np.cumsum([0] + [len(g[2]) for g in groups])
         bounds = [_bounding(c, r) for _, c, r, _ in groups]
@@ -208,7 +223,8 @@ class SphereRobot:
                    np.array([b[2] for b in boxes]).reshape(-1, 3) + BOX_MARGIN,
                    np.array([p[0] for p in box_pairs], dtype=np.int64),
                    np.array([p[1] for p in box_pairs], dtype=np.int64),
-                   np.array([b[2] for b in boxes], float).reshape(-1, 3))
+                   np.array([b[2] for b in boxes], float).reshape(-1, 3),
+                   *_inner_arrays(inner))
 
     def first(self, frames: np.ndarray, world: World, start: int = 0,
               pre: np.ndarray | None = None) -> int:
@@ -225,12 +241,16 @@ class SphereRobot:
             world.og_lo, world.og_hi, world.sph_c, world.sph_r))
 
     def surely_hits(self, frames: np.ndarray, n: int, world: World) -> bool:
-        """Does row n of ``frames`` certainly collide (a robot box deep in a world box)?"""
-        if not len(self.rbox_solid) or not len(world.box_c):
+        """Does row n of ``frames`` certainly collide (a robot box or an inner sphere deep
+        in a world box)?"""
+        if not len(world.box_c):
             return False
-        return bool(collide.box_hit(frames, n, self.rbox_frame, self.rbox_T, self.rbox_solid,
-                                    world.box_c, world.box_R, world.box_h, world.box_r,
-                                    PROOF_DEPTH))
+        boxes = (world.box_c, world.box_R, world.box_h, world.box_r, PROOF_DEPTH)
+        return bool(
+            (len(self.in_r) and collide.sphere_hit(frames, n, self.in_frame, self.in_c,
+                                                   self.in_r, *boxes))
+            or (len(self.rbox_solid) and collide.box_hit(
+                frames, n, self.rbox_frame, self.rbox_T, self.rbox_solid, *boxes)))
 
     def uncertain(self, frames: np.ndarray, world: World,
                   pre: np.ndarray | None = None) -> np.ndarray:
@@ -241,6 +261,21 @@ class SphereRobot:
             out[k] = True
             k = self.first(frames, world, k + 1, pre)
         return out
+
+
+def _inner_arrays(inner) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    if inner is None:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0)
+    frames, centres, radii = inner
+    return (np.asarray(frames, dtype=np.int64), np.asarray(centres, float).reshape(-1, 3),
+            np.asarray(radii, float))
+
+
+def panda_inner():
+    """The Panda's inner spheres (:func:`pipeline.sim.spheres.panda_inner_spheres`) as
+    SphereRobot.build's ``inner``."""
+    model = spheres.panda_inner_spheres()
+    return model.frames, model.centres, model.radii
 
 
 def panda_groups(model: spheres.SphereModel, frame_of=None):
@@ -356,7 +391,7 @@ def _panda_parts(ignored: frozenset):
 @functools.lru_cache(maxsize=8)
 def _panda_robot(ignored: frozenset) -> SphereRobot:
     groups, _, pairs = _panda_parts(ignored)
-    return SphereRobot.build(groups, pairs)
+    return SphereRobot.build(groups, pairs, inner=panda_inner())
 
 
 def _arm_robot(client: int, arm_body: int, ignored_pairs, held, hand_links):
@@ -371,7 +406,8 @@ def _arm_robot(client: int, arm_body: int, ignored_pairs, held, hand_links):
     if box is None:
         return None, frames, False
     arm_links = [(0, index[link]) for link in index if link not in hand_links]
-    return SphereRobot.build(groups, pairs, boxes=[box], box_pairs=arm_links), frames, True
+    return (SphereRobot.build(groups, pairs, boxes=[box], box_pairs=arm_links,
+                              inner=panda_inner()), frames, True)
 
 
 def arm_checker(client: int, arm_body: int, ignored_pairs, exact, *, held=None,

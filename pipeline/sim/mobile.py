@@ -152,9 +152,9 @@ class MobilePanda:
     def held_in_base(self) -> np.ndarray:
         return self._base_obj
 
-    def ik(self, position, orientation, rng: np.random.Generator, restarts: int):
+    def ik(self, position, orientation, starts):
         """Panda.ik with this robot's check (platform and held object included)."""
-        return self.arm.ik(position, orientation, rng, restarts, collides=self.arm_collides)
+        return self.arm.ik(position, orientation, starts, collides=self.arm_collides)
 
     def held_pose(self) -> np.ndarray:
         return _pose_of(self.held, self.client)

@@ -136,26 +136,24 @@ class Panda(Robot):
                                 physicsClientId=self.client)
         return np.array(state[4]), np.array(state[5])
 
-    def ik(self, position, orientation, rng: np.random.Generator, restarts: int,
-           pos_tol: float = 0.005, ang_tol: float = 0.05,
-           collides=None) -> tuple[np.ndarray | None, int, bool]:
+    def ik(self, position, orientation, starts, pos_tol: float = 0.005,
+           ang_tol: float = 0.05, collides=None) -> tuple[np.ndarray | None, int, bool]:
         """(a collision-free joint solution reaching the TCP pose or None, the collision
-        checks used, whether any solution reached the pose).  Restart k starts from home
-        (k = 0) or from a random configuration drawn from ``rng``.  ``collides(q)`` is the
-        check (default: this arm's own)."""
+        checks used, whether any solution reached the pose).  One damped IK run from each
+        configuration ``starts`` yields (an iterable, drawn from only as far as needed),
+        until one gives a collision-free solution.  ``collides(q)`` is the check (default:
+        this arm's own)."""
         collides = collides or self.collides_at
         checks = 0
-        ranges = list(UPPER - LOWER)
-        for k in range(restarts):
-            start = HOME if k == 0 else rng.uniform(LOWER, UPPER)
+        target, turn = list(position), list(orientation)
+        for start in starts:
             self.set(start)
             sol = pb.calculateInverseKinematics(
-                self.body, TCP_LINK, list(position), list(orientation),
-                lowerLimits=list(LOWER), upperLimits=list(UPPER), jointRanges=ranges,
-                restPoses=list(start), jointDamping=[0.005] * 9, maxNumIterations=50,
-                residualThreshold=1e-5, physicsClientId=self.client)
+                self.body, TCP_LINK, target, turn, lowerLimits=_LOWER, upperLimits=_UPPER,
+                jointRanges=_RANGES, restPoses=list(start), jointDamping=_DAMPING,
+                maxNumIterations=50, residualThreshold=1e-5, physicsClientId=self.client)
             q = np.array(sol[:7])
-            if np.any(q < LOWER) or np.any(q > UPPER):
+            if ((q < LOWER) | (q > UPPER)).any():
                 continue
             pos, orn = self.tcp_pose(q)
             if np.linalg.norm(pos - position) > pos_tol or _angle(orn, orientation) > ang_tol:
@@ -164,6 +162,21 @@ class Panda(Robot):
             if not collides(q):
                 return q, checks, True
         return None, checks, checks > 0
+
+
+def ik_starts(rng_seed, restarts: int):
+    """The starts of IK's restarts: home, then configurations drawn uniformly within the
+    limits from ``numpy.random.default_rng(rng_seed)``, made at the first draw (making a
+    Generator costs more than many IK calls that succeed from home)."""
+    yield HOME
+    if restarts > 1:
+        rng = np.random.default_rng(rng_seed)
+        for _ in range(restarts - 1):
+            yield rng.uniform(LOWER, UPPER)
+
+
+_LOWER, _UPPER, _RANGES = list(LOWER), list(UPPER), list(UPPER - LOWER)
+_DAMPING = [0.005] * 9
 
 
 def _angle(q1, q2) -> float:

@@ -13,6 +13,9 @@ planes, so a sphere holding those points holds the piece.  The slabs are about a
 the hull is wide (``slab_ratio``), which keeps the spheres tight.  Every radius then gets
 ``margin`` metres on top (pybullet's contact margin, rounding).
 
+An *inner* model (:func:`panda_inner_spheres`) is the opposite: spheres inside the hulls,
+so one of them deep in an obstacle proves a collision without asking pybullet.
+
 Kinematics come from the URDF in ``pybullet_data`` (joint origins, axes, the fixed finger
 opening), in the URDF link frames pybullet reports as ``worldLinkFramePosition``.
 """
@@ -231,4 +234,31 @@ def panda_spheres(margin: float = 0.0025, slab_ratio: float = 0.3,
             centres.append(c)
             radii.append(r + margin)
             links.append(link)
+    return SphereModel(np.array(centres), np.array(radii), np.array(links))
+
+
+@functools.lru_cache(maxsize=2)
+def panda_inner_spheres(fingers: float = 0.04, per_link: int = 12,
+                        min_radius: float = 0.01) -> SphereModel:
+    """Spheres inside the Panda's collision hulls (not the base link's, whose contacts the
+    exact check ignores): centres on each hull's longest principal axis, through the
+    centroid of its vertices, each radius the centre's distance to the nearest hull
+    facet.  Those under ``min_radius`` are dropped."""
+    centres, radii, links = [], [], []
+    offsets = fixed_offsets(fingers)
+    for link, (path, origin) in sorted(panda_chain().meshes.items()):
+        if link == -1:
+            continue
+        T = offsets[link] @ origin
+        verts = _mesh_vertices(path) @ T[:3, :3].T + T[:3, 3]
+        hull = ConvexHull(verts)
+        mean = verts[hull.vertices].mean(axis=0)
+        axis = np.linalg.svd(verts[hull.vertices] - mean, full_matrices=False)[2][0]
+        t = (verts[hull.vertices] - mean) @ axis
+        for c in mean + np.outer(np.linspace(t.min(), t.max(), per_link + 2)[1:-1], axis):
+            r = -float(np.max(hull.equations[:, :3] @ c + hull.equations[:, 3]))
+            if r >= min_radius:
+                centres.append(c)
+                radii.append(r)
+                links.append(link)
     return SphereModel(np.array(centres), np.array(radii), np.array(links))
