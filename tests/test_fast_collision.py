@@ -80,6 +80,47 @@ def test_spheres_hold_every_point_of_every_collision_hull():
         assert d.min(axis=1).max() <= 1e-9, f"link {link}"
 
 
+def test_inner_spheres_lie_inside_their_collision_hulls():
+    """Points of every inner sphere (its centre and 200 points on its surface) are inside
+    the convex hull of its link's collision mesh, and the fingers' and the base link's are
+    not needed: the base link's contacts are not collisions."""
+    inner = S.panda_inner_spheres()
+    offsets = S.fixed_offsets()
+    rng = np.random.default_rng(2)
+    directions = rng.normal(size=(200, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    assert -1 not in set(inner.links.tolist()) and len(inner.radii) > 50
+    for link, (path, origin) in S.panda_chain().meshes.items():
+        m = inner.links == link
+        if not m.any():
+            continue
+        T = offsets[link] @ origin
+        hull = Delaunay(S._mesh_vertices(path) @ T[:3, :3].T + T[:3, 3])
+        for c, r in zip(inner.centres[m], inner.radii[m], strict=True):
+            points = np.concatenate([c[None], c + (r - 1e-9) * directions])
+            assert np.all(hull.find_simplex(points) >= 0), f"link {link}"
+
+
+def test_proven_arm_collisions_are_pybullet_collisions(grasp_arm):
+    """Wherever an inner sphere reaches the proof depth into a box, pybullet reports a
+    collision (random configurations of both arms on several instances)."""
+    domain = grasp_arm["exact"]
+    rng = np.random.default_rng(9)
+    proved = 0
+    for seed in range(6):
+        scene = domain.scene(domain.check_instance(domain.sample_instance(40 + seed)))
+        arm = scene.arms[seed % 2]
+        checker = FC.certified(arm).checker
+        Q = rng.uniform(P.LOWER, P.UPPER, (250, 7))
+        frames = checker.frames(Q)
+        for n, q in enumerate(Q):
+            if checker.robot.surely_hits(frames, n, checker.world):
+                proved += 1
+                assert arm.collides_at(q), (seed, q.tolist())
+        arm.set(P.HOME)
+    assert proved > 100
+
+
 def test_every_pybullet_contact_is_flagged_by_the_pre_check(grasp_arm):
     """Conservativeness: on an instance with obstacles and the other arm, every
     configuration with a pybullet contact (with a box, the other arm or itself) is one the

@@ -7,11 +7,11 @@ checked.  It first runs the compiled pre-check (:mod:`pipeline.sim.collide`) on 
 at once.  The robot's spheres cover its collision geometry, so a row the pre-check clears
 is collision-free for pybullet too; the other rows are confirmed with the exact check, in
 order, and the first confirmed collision ends the call.  A row where a box the robot
-carries (its platform, a held object) reaches deep into a box of the world needs no
-confirmation: box against box is exact geometry on both sides, so that row is a proven
-collision.  Hence the answer *and the count*
-equal the exact checker's: planners take the same branches and find the same paths, and
-stored entries replay under either setting.
+carries (its platform, a held object) or a sphere inside one of its link hulls reaches
+``PROOF_DEPTH`` into a box of the world needs no confirmation: the robot's real geometry
+holds that box or sphere, so that row is a proven collision.  Hence the answer *and the
+count* equal the exact checker's: planners take the same branches and find the same
+paths, and stored entries replay under either setting.
 
 The world is read from the pybullet client when a checker is made (boxes as oriented
 boxes, other Pandas as spheres at their joint states) and assumed fixed while it is used:

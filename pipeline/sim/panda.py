@@ -168,6 +168,8 @@ def ik_starts(rng_seed, restarts: int):
     """The starts of IK's restarts: home, then configurations drawn uniformly within the
     limits from ``numpy.random.default_rng(rng_seed)``, made at the first draw (making a
     Generator costs more than many IK calls that succeed from home)."""
+    if restarts < 1:
+        return
     yield HOME
     if restarts > 1:
         rng = np.random.default_rng(rng_seed)
