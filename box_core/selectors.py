@@ -27,6 +27,11 @@ from box_core.prior import FoldPriors, Prior
 
 SELECTORS: dict[str, type[Policy]] = {}
 
+#: Raised whenever a selector's choices change for the same inputs, so that evaluations
+#: stored by an earlier revision are recognised as stale (2: eips's instance-conditioned
+#: time model).
+SELECTOR_REVISION = 2
+
 
 def register(name: str):
     """Class decorator adding a policy to :data:`SELECTORS` under ``name``."""
@@ -360,12 +365,19 @@ class Eips(Policy):
     distribution.  Only rows whose weight changes touch the sums, so a try costs
     O(m + changed rows * m), the whole trace O((k + n) m) at most.
 
-    Cost model: tau_j = p_j s_j + (1 - p_j) f_j, where s_j and f_j are the mean times of
-    column j's feasible and infeasible training entries (over all training rows; the mean of
-    the whole column where one kind is missing).  Planning times are heavy-tailed (a failure
-    that exhausts the planner's budget costs 1000 times one refuted at IK), so per-instance
-    conditional time averages over the few agreeing rows are too noisy to rank by; the
-    outcome, which the history does predict, is what changes a try's expected cost most.
+    Cost model: tau_j = p_j s_j + (1 - p_j) f_j, where s_j and f_j are the typical times of
+    column j's feasible and infeasible entries *on instances like this one*: geometric
+    means (planning times are heavy-tailed: a failure that exhausts the planner's budget
+    costs 1000 times one refuted at IK, so logarithms, not seconds, are averaged) over the
+    training rows with the same weights w, plus ``time_rows`` pseudo-rows at the column's
+    geometric mean over all training rows (of the whole column where one kind is missing):
+
+        log s_j = (sum_r w_r F[r, j] log T[r, j] + b g_j) / (sum_r w_r F[r, j] + b)
+
+    and f_j alike with 1 - F; times below :data:`TIME_FLOOR` count as the floor.  So the
+    history conditions both what a try will yield and what it will cost: an instance whose
+    failures look like those of instances where this grasp ran the planner out of budget
+    expects that cost.
 
     Gain: while nothing feasible has been found, p_j, so the ratio p_j / tau_j is the
     classic optimal search order for independent tries (Kadane), here re-ranked after every
@@ -376,17 +388,20 @@ class Eips(Policy):
     by tau_j.  Ties go to the lowest index.
     """
 
-    defaults = {"prior_rows": 1.0, "mismatch": 0.1}
+    defaults = {"prior_rows": 1.0, "mismatch": 0.1, "time_rows": 5.0}
     needs_outcomes = True
 
-    def __init__(self, ctx: FoldContext, prior_rows: float = 1.0, mismatch: float = 0.1):
+    def __init__(self, ctx: FoldContext, prior_rows: float = 1.0, mismatch: float = 0.1,
+                 time_rows: float = 5.0):
         super().__init__(ctx)
         if not (math.isfinite(prior_rows) and prior_rows > 0):
             raise ValueError(f"prior_rows must be a finite number > 0, got {prior_rows!r}")
         if not (math.isfinite(mismatch) and 0 <= mismatch < 1):
             raise ValueError(f"mismatch must lie in [0, 1), got {mismatch!r}")
+        if not (math.isfinite(time_rows) and time_rows > 0):
+            raise ValueError(f"time_rows must be a finite number > 0, got {time_rows!r}")
         out = ctx.outcomes
-        self.a, self.rho = float(prior_rows), float(mismatch)
+        self.a, self.rho, self.b = float(prior_rows), float(mismatch), float(time_rows)
         self._FT = np.ascontiguousarray(out.feasible.T)  # (m, n): a column's rows, contiguous
         self._threshold = out.threshold
         F = out.feasible.astype(np.float64)
@@ -406,13 +421,14 @@ class Eips(Policy):
         self._sums = fold_sums(F)
         self._mass = self._w.sum(axis=1)
         self._pbar = self._sums / np.maximum(self._mass, 1.0)[:, None]
-        ok_n, ok_t = self._sums, fold_sums(out.times * F)
-        all_t = fold_sums(out.times)
-        fail_n = self._mass[:, None] - ok_n
-        mean_t = all_t / np.maximum(self._mass, 1.0)[:, None]
+        logT = np.log(np.maximum(out.times, TIME_FLOOR))
+        self._L = (F * logT, (1.0 - F) * logT)  # log times of feasible / infeasible entries
+        self._lsums = [fold_sums(L) for L in self._L]  # their weighted column sums, (B, m)
+        ok_n, fail_n = self._sums, self._mass[:, None] - self._sums
+        mean_l = fold_sums(logT) / np.maximum(self._mass, 1.0)[:, None]
         with np.errstate(divide="ignore", invalid="ignore"):
-            self._t_ok = np.where(ok_n > 0, ok_t / ok_n, mean_t)
-            self._t_fail = np.where(fail_n > 0, (all_t - ok_t) / fail_n, mean_t)
+            self._g = (np.where(ok_n > 0, self._lsums[0] / ok_n, mean_l),
+                       np.where(fail_n > 0, self._lsums[1] / fail_n, mean_l))
         self._best = np.full(ctx.size, -np.inf)
         self.posterior = GaussianPosterior(ctx.prior, capacity=ctx.horizon or 16)
 
@@ -422,7 +438,12 @@ class Eips(Policy):
         """(p, tau), each (B, m): probability of feasibility and expected time per column."""
         p = (self._sums + self.a * self._pbar) / (self._mass + self.a)[:, None]
         p = np.clip(p, 0.0, 1.0)
-        tau = np.maximum(p * self._t_ok + (1.0 - p) * self._t_fail, 1e-12)
+        b = self.b
+        ok_w = self._sums
+        fail_w = np.maximum(self._mass[:, None] - ok_w, 0.0)
+        t_ok = np.exp((self._lsums[0] + b * self._g[0]) / (ok_w + b))
+        t_fail = np.exp((self._lsums[1] + b * self._g[1]) / (fail_w + b))
+        tau = np.maximum(p * t_ok + (1.0 - p) * t_fail, 1e-12)
         return p, tau
 
     def propose(self) -> np.ndarray:
@@ -455,10 +476,15 @@ class Eips(Policy):
                 self._live[b, r] = False
             delta = sparse.csr_matrix((change, (b, r)), shape=self._w.shape)
             self._sums += delta @ self._Fm
+            for sums, L in zip(self._lsums, self._L, strict=True):
+                sums += delta @ L
             self._mass += np.bincount(b, weights=change, minlength=self.ctx.size)
 
 
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
+
+#: EIPS's cost model takes times below this (seconds) as this: logarithms need a floor
+TIME_FLOOR = 1e-6
 
 #: EIPS's expected improvement counts as 0 more than Z_LIMIT posterior standard deviations
 #: below the best score, and as the plain gap more than Z_LIMIT above it (what the formula
@@ -575,7 +601,7 @@ def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores
     ``oracle`` and ``fastest``, which also needs ``true_times`` (m,); ``seed`` (an int or a
     sequence of ints) seeds ``rand`` and ``doo``.  Further keyword arguments are the
     selector's parameters (``c`` for box, ``lam`` for doo, ``delta`` for pembo,
-    ``prior_rows`` and ``mismatch`` for eips).
+    ``prior_rows``, ``mismatch`` and ``time_rows`` for eips).
     """
     D = validation.score_matrix(train_scores, name="train_scores", min_rows=2)
     unit = score_unit(D)

@@ -25,6 +25,12 @@ def own_constraints(store) -> np.ndarray | None:
     return source[None, :] == np.arange(n)[:, None]
 
 
+def stored_revision(info: dict) -> int:
+    """The box_core selector revision a stored evaluation was made with (1: before
+    revisions were recorded)."""
+    return int(info.get("selector_revision", 1))
+
+
 def selector_params(names, settings) -> dict:
     """box_core parameters from the evaluate.* settings (BOX's C)."""
     return {"box": {"c": settings["c"]}} if "box" in names else {}
@@ -34,7 +40,8 @@ def evaluate(ctx: StageContext) -> None:
     store = ctx.store
     settings = ctx.config["evaluate"]
     info = store.stage_info("evaluate")
-    if info is not None and info.get("settings") == settings:
+    if info is not None and info.get("settings") == settings and stored_revision(
+            info) == box_core.SELECTOR_REVISION:
         ctx.say("evaluate: already complete with these settings; nothing to do")
         print_stored_summary(ctx)
         return
@@ -65,7 +72,8 @@ def evaluate(ctx: StageContext) -> None:
     leakage = {"own_constraint_rows": 0 if own is None else int(own.any(axis=1).sum()),
                "hidden": hide is not None}
     store.mark_finished("evaluate", settings=settings, failure_value=result.failure_value,
-                        summary=summary.to_dict(), leakage=leakage)
+                        summary=summary.to_dict(), leakage=leakage,
+                        selector_revision=box_core.SELECTOR_REVISION)
     n, m = scores.shape
     ctx.console.print(summary_table(summary, title=f"{ctx.path.name}  ({n} x {m})"))
 

@@ -24,10 +24,12 @@ import numpy as np
 from omegaconf import OmegaConf
 from rich.console import Console
 
+from box_core import SELECTOR_REVISION
 from pipeline import configs, validation, worker
 from pipeline.configs import Stage
 from pipeline.context import StageContext
 from pipeline.domains import ConstraintSet, load_domain
+from pipeline.evaluation import stored_revision
 from pipeline.execution import Task, connect_first, dask_client, run_tasks
 from pipeline.integrity import Damage, digest
 from pipeline.location import locate
@@ -283,6 +285,9 @@ def todo_evaluate(run: Run) -> str | None:
         return "not run yet"
     if info.get("settings") != run.plain["evaluate"]:
         return "its settings changed"
+    if stored_revision(info) != SELECTOR_REVISION:
+        return (f"box_core's selectors changed (revision {stored_revision(info)} -> "
+                f"{SELECTOR_REVISION})")
     changed = run.changed_inputs("evaluate")
     if changed:
         return f"its inputs changed ({', '.join(changed)})"

@@ -146,10 +146,10 @@ def loocv_orders(D, name, k, seed=0, features=None, **params):
     return np.array(out)
 
 
-def eips_order(train, feasible, times, truth, k, prior_rows=1.0, mismatch=0.1):
+def eips_order(train, feasible, times, truth, k, prior_rows=1.0, mismatch=0.1, time_rows=5.0):
     """EIPS recomputed from scratch at every step: row weights from the whole history,
-    the frequency p, the outcome-split column mean times, and eq. 2 by direct solves for
-    the expected improvement."""
+    the frequency p, the weighted outcome-split geometric mean times, and eq. 2 by direct
+    solves for the expected improvement."""
     mu, S = fit(train)
     oks, fails = train[feasible], train[~feasible]
     if not oks.size or not fails.size:  # everything fails / nothing fails
@@ -160,16 +160,21 @@ def eips_order(train, feasible, times, truth, k, prior_rows=1.0, mismatch=0.1):
     tried = np.zeros(m, dtype=bool)
     idx, obs = [], []
     pbar = feasible.mean(axis=0)
-    t_ok, t_fail = np.empty(m), np.empty(m)
+    logt = np.log(np.maximum(times, 1e-6))
+    g_ok, g_fail = np.empty(m), np.empty(m)
     for j in range(m):
-        ok, fail = times[feasible[:, j], j], times[~feasible[:, j], j]
-        t_ok[j] = ok.mean() if ok.size else times[:, j].mean()
-        t_fail[j] = fail.mean() if fail.size else times[:, j].mean()
+        ok, fail = logt[feasible[:, j], j], logt[~feasible[:, j], j]
+        g_ok[j] = ok.mean() if ok.size else logt[:, j].mean()
+        g_fail[j] = fail.mean() if fail.size else logt[:, j].mean()
     for _ in range(k):
         w = np.ones(n)
         for j, y in zip(idx, obs, strict=True):
             w[feasible[:, j] != (y > threshold)] *= mismatch
         p = (w @ feasible + prior_rows * pbar) / (w.sum() + prior_rows)
+        wf, wg = w[:, None] * feasible, w[:, None] * ~feasible
+        t_ok = np.exp(((wf * logt).sum(axis=0) + time_rows * g_ok) / (wf.sum(axis=0) + time_rows))
+        t_fail = np.exp(((wg * logt).sum(axis=0) + time_rows * g_fail)
+                        / (wg.sum(axis=0) + time_rows))
         tau = p * t_ok + (1 - p) * t_fail
         found = [y for y in obs if y > threshold]
         if found:

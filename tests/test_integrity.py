@@ -109,3 +109,24 @@ def test_evaluate_reruns_when_its_inputs_or_settings_change(made, tmp_path):
     assert "evaluate: running again: its inputs changed (scores/time)" in res.stdout
     res = pr.run(copy, "stage=evaluate", "evaluate.k=5")
     assert "evaluate: already complete" in res.stdout
+
+
+def test_evaluate_reruns_when_box_cores_selectors_changed(made, tmp_path):
+    """An evaluation stored by an earlier revision of the selectors (or before revisions
+    were recorded) is stale: the next run replaces it and records the current one."""
+    import box_core
+
+    copy = _copy(made, tmp_path)
+    root = copy / "zarr.json"
+    doc = json.loads(root.read_text())
+    assert doc["attributes"]["stages"]["evaluate"]["selector_revision"] == \
+        box_core.SELECTOR_REVISION
+    del doc["attributes"]["stages"]["evaluate"]["selector_revision"]
+    root.write_text(json.dumps(doc))
+    res = pr.run(copy, "stage=evaluate")
+    assert res.returncode == 0, res.stderr
+    assert (f"evaluate: running again: box_core's selectors changed (revision 1 -> "
+            f"{box_core.SELECTOR_REVISION})") in res.stdout
+    doc = json.loads(root.read_text())
+    assert doc["attributes"]["stages"]["evaluate"]["selector_revision"] == \
+        box_core.SELECTOR_REVISION
