@@ -10,7 +10,7 @@ import pytest
 from pipeline.domains import InstanceError, load_domain
 from pipeline.domains.grasp_base import BaseGrasp
 from pipeline.domains.pick_place import GOAL_TABLE, PickPlaceDomain, rod_grasps
-from pipeline.planning import Status, path_is_free
+from pipeline.planning import PlanResult, Status, path_is_free
 from pipeline.sim import panda as P
 
 TARGET = {"size": [0.04, 0.04, 0.12], "position": [0.8, 0.0, 0.461], "yaw": 0.0}
@@ -232,6 +232,12 @@ def test_renders_are_non_empty_images(grasp_base, pick_place, open_route, tmp_pa
     plan = pick_place.plan(spec, raw.constraint, seed=4)
     out = pick_place.render(spec, plan, tmp_path / "pp.png", constraint=raw.constraint)
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 20_000
+    assert plan.feasible  # a plan read back from disk (stage=solve's best) has no segments
+    bare = PlanResult(Status.OK, path=plan.path, length=plan.length)
+    again = pick_place.render(spec, bare, tmp_path / "pp2.png", constraint=raw.constraint)
+    from matplotlib.image import imread
+
+    assert np.array_equal(imread(again), imread(out))
     plan = grasp_base.plan(OPEN_TABLE, FACING + TOP_GRASP, seed=1)
     out = grasp_base.render(OPEN_TABLE, plan, tmp_path / "gb.png",
                             constraint=FACING + TOP_GRASP)

@@ -291,7 +291,9 @@ class PickPlaceDomain(Domain):
                 placed = placed_rod(inst.rod_length, theta.placement)
                 marks.append((placed, "tab:purple", "placement o"))
                 if plan is not None and plan.feasible:
-                    base_path = plan.segments["base_path"][:, :3]
+                    # the base stands still while the arm moves: the whole path's (x, y, ψ)
+                    # is the base path's strip (a plan read back from disk has no segments)
+                    base_path = np.asarray(plan.path)[:, :3]
                     scene.put_rod(placed)
                     scene.set_configuration(plan.path[-1])
             status = "" if plan is None else f", {plan.status.name.lower()}" + (
