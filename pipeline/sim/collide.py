@@ -76,19 +76,28 @@ def _sphere_box(p, r, c, R, h):  # pragma: no cover (compiled)
 
 
 @njit(cache=True)
-def _box_box(ca, Ra, ha, cb, Rb, hb):  # pragma: no cover (compiled)
-    """Separating-axis test of two boxes (Ericson, Real-Time Collision Detection 4.4.1):
-    True unless one of the 15 axes separates them."""
+def _relative(ca, Ra, cb, Rb, eps):  # pragma: no cover (compiled)
+    """Box B seen from box A: B's axes in A's frame (Rm), their absolute values plus
+    ``eps`` (Am, the slack that keeps near-parallel edges from separating by rounding) and
+    the centre offset in A's frame (t)."""
     Rm = np.empty((3, 3))
     Am = np.empty((3, 3))
     t = np.empty(3)
     for i in range(3):
         for j in range(3):
             Rm[i, j] = Ra[0, i] * Rb[0, j] + Ra[1, i] * Rb[1, j] + Ra[2, i] * Rb[2, j]
-            Am[i, j] = abs(Rm[i, j]) + 1e-9
+            Am[i, j] = abs(Rm[i, j]) + eps
     d0, d1, d2 = cb[0] - ca[0], cb[1] - ca[1], cb[2] - ca[2]
     for i in range(3):
         t[i] = d0 * Ra[0, i] + d1 * Ra[1, i] + d2 * Ra[2, i]
+    return Rm, Am, t
+
+
+@njit(cache=True)
+def _box_box(ca, Ra, ha, cb, Rb, hb):  # pragma: no cover (compiled)
+    """Separating-axis test of two boxes (Ericson, Real-Time Collision Detection 4.4.1):
+    True unless one of the 15 axes separates them."""
+    Rm, Am, t = _relative(ca, Ra, cb, Rb, 1e-9)
     for i in range(3):
         if abs(t[i]) > ha[i] + hb[0] * Am[i, 0] + hb[1] * Am[i, 1] + hb[2] * Am[i, 2]:
             return False
@@ -112,16 +121,7 @@ def _box_overlap(ca, Ra, ha, cb, Rb, hb):  # pragma: no cover (compiled)
     """How deep two boxes interpenetrate: the least overlap of their projections on the 15
     separating axes (unit length; edge axes of nearly parallel edges, which the face axes
     stand in for, are left out).  Negative when an axis separates them."""
-    Rm = np.empty((3, 3))
-    Am = np.empty((3, 3))
-    t = np.empty(3)
-    for i in range(3):
-        for j in range(3):
-            Rm[i, j] = Ra[0, i] * Rb[0, j] + Ra[1, i] * Rb[1, j] + Ra[2, i] * Rb[2, j]
-            Am[i, j] = abs(Rm[i, j])
-    d0, d1, d2 = cb[0] - ca[0], cb[1] - ca[1], cb[2] - ca[2]
-    for i in range(3):
-        t[i] = d0 * Ra[0, i] + d1 * Ra[1, i] + d2 * Ra[2, i]
+    Rm, Am, t = _relative(ca, Ra, cb, Rb, 0.0)
     least = np.inf
     for i in range(3):
         least = min(least, ha[i] + hb[0] * Am[i, 0] + hb[1] * Am[i, 1] + hb[2] * Am[i, 2]
