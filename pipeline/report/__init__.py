@@ -13,7 +13,7 @@ import numpy as np
 import box_core
 from box_core.stats import INTERVAL_NOTE
 from pipeline.report import figures
-from pipeline.report.data import StoreResults, load
+from pipeline.report.data import StoreResults, load, tell_apart
 from pipeline.report.document import Document
 
 __all__ = ["StoreResults", "fmt", "load", "make_report", "summary_rows"]
@@ -108,6 +108,7 @@ def make_report(paths, out_dir: Path, settings: dict, say=print) -> dict[str, Pa
     formats).
     """
     results = [load(p) for p in paths]
+    tell_apart(results)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     formats = settings["formats"]

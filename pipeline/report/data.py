@@ -39,6 +39,7 @@ class StoreResults:
     order: dict[str, np.ndarray]
     leakage: dict | None = None  # {"own_constraint_rows", "hidden"} as stage evaluate stored
     forbidden: np.ndarray | None = None  # (n, m) columns hidden from their own row, if any
+    detail: str = ""  # what tells this store from others of the same domain and planner
 
     @property
     def domain(self) -> str:
@@ -50,7 +51,8 @@ class StoreResults:
 
     @property
     def label(self) -> str:
-        return f"{self.domain} / {self.planner}"
+        base = f"{self.domain} / {self.planner}"
+        return f"{base} ({self.detail})" if self.detail else base
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -70,6 +72,32 @@ class StoreResults:
         """RAWPLANNER's best score versus ``time_grid``, per row (its one plan, when found)."""
         reached = self.raw_feasible[:, None] & (self.raw_time[:, None] <= self.time_grid[None])
         return np.where(reached, -self.raw_length[:, None], self.failure_value)
+
+
+def tell_apart(results: list[StoreResults]) -> None:
+    """Give stores that share a domain and a planner a ``detail`` naming the settings in
+    which they differ (``step_order=paper``), or their file names when none differ."""
+    groups: dict[str, list[StoreResults]] = {}
+    for res in results:
+        groups.setdefault(res.label, []).append(res)
+    for same in groups.values():
+        if len(same) < 2:
+            continue
+        flat = [_flatten(r.spec) for r in same]
+        keys = sorted({k for f in flat for k in f if len({repr(g.get(k)) for g in flat}) > 1})
+        for res, f in zip(same, flat, strict=True):
+            res.detail = (", ".join(f"{k.split('.')[-1]}={f.get(k)}" for k in keys)
+                          or Path(str(res.path).rstrip("/")).name)
+
+
+def _flatten(spec: dict, prefix: str = "") -> dict:
+    out = {}
+    for key, value in spec.items():
+        if isinstance(value, dict):
+            out.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
 
 
 def load(path) -> StoreResults:
