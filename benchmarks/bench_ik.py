@@ -58,22 +58,9 @@ def main() -> None:
     for name in ("pybullet (4 restarts)", "frankik ik_sample_q7"):
         ok, t = 0, 0.0
         for k, (arm, pos, orn, T) in enumerate(poses):
-            rng = np.random.default_rng(k)
             t0 = time.perf_counter()
-            if name.startswith("pybullet"):
-                q = None
-                for r in range(4):  # Panda.ik's loop without the collision check
-                    start = P.HOME if r == 0 else rng.uniform(P.LOWER, P.UPPER)
-                    arm.set(start)
-                    sol = pb.calculateInverseKinematics(
-                        arm.body, P.TCP_LINK, list(pos), list(orn), lowerLimits=list(P.LOWER),
-                        upperLimits=list(P.UPPER), jointRanges=list(P.UPPER - P.LOWER),
-                        restPoses=list(start), jointDamping=[0.005] * 9, maxNumIterations=50,
-                        residualThreshold=1e-5, physicsClientId=arm.client)
-                    cand = np.array(sol[:7])
-                    if reached(arm, cand, pos, orn):
-                        q = cand
-                        break
+            if name.startswith("pybullet"):  # Panda.ik without the collision check
+                q, _, _ = arm.ik(pos, orn, P.ik_starts(k, 4), collides=lambda q: False)
             else:
                 local = np.linalg.inv(base_link_frame(arm.client, arm.body)) @ T
                 sols = frankik.ik_sample_q7(local @ np.linalg.inv(flange_tcp), P.HOME,
