@@ -64,6 +64,15 @@ def _apply(F, p, out):  # pragma: no cover (compiled)
 
 
 @njit(cache=True)
+def _place(F, T, R, c):  # pragma: no cover (compiled)
+    """World rotation R and centre c of a box at pose T (3 × 4) in frame F (3 × 4)."""
+    for i in range(3):
+        for j in range(3):
+            R[i, j] = F[i, 0] * T[0, j] + F[i, 1] * T[1, j] + F[i, 2] * T[2, j]
+        c[i] = F[i, 0] * T[0, 3] + F[i, 1] * T[1, 3] + F[i, 2] * T[2, 3] + F[i, 3]
+
+
+@njit(cache=True)
 def _sphere_box(p, r, c, R, h):  # pragma: no cover (compiled)
     """Does the sphere (p, r) reach into the box (centre c, rotation R, half extents h)?"""
     d0, d1, d2 = p[0] - c[0], p[1] - c[1], p[2] - c[2]
@@ -150,15 +159,8 @@ def box_hit(frames, n, rbox_frame, rbox_T, rbox_solid, box_c, box_R, box_h, box_
     collision: box against box is exact geometry, for pybullet too."""
     Rw = np.empty((3, 3))
     cw = np.empty(3)
-    p = np.empty(3)
     for b in range(rbox_T.shape[0]):
-        F = frames[n, rbox_frame[b]]
-        for i in range(3):
-            for j in range(3):
-                Rw[i, j] = (F[i, 0] * rbox_T[b, 0, j] + F[i, 1] * rbox_T[b, 1, j]
-                            + F[i, 2] * rbox_T[b, 2, j])
-            p[i] = rbox_T[b, i, 3]
-        _apply(F, p, cw)
+        _place(frames[n, rbox_frame[b]], rbox_T[b], Rw, cw)
         rb = math.sqrt(rbox_solid[b, 0] ** 2 + rbox_solid[b, 1] ** 2 + rbox_solid[b, 2] ** 2)
         for m in range(box_c.shape[0]):
             dx, dy, dz = cw[0] - box_c[m, 0], cw[1] - box_c[m, 1], cw[2] - box_c[m, 2]
@@ -208,7 +210,6 @@ def first_uncertain(frames, start, pre, grp_frame, grp_c, grp_r, grp_lo, grp_hi,
     S = sph_c.shape[0]
     gw = np.empty((G, 3))
     sw = np.empty((S, 3))
-    p = np.empty(3)
     Rw = np.empty((3, 3))
     cw = np.empty(3)
     for n in range(start, frames.shape[0]):
@@ -259,14 +260,7 @@ def first_uncertain(frames, start, pre, grp_frame, grp_c, grp_r, grp_lo, grp_hi,
                     if dx * dx + dy * dy + dz * dz < reach * reach:
                         return n
         for b in range(rbox_T.shape[0]):
-            F = frames[n, rbox_frame[b]]
-            for i in range(3):
-                for j in range(3):
-                    Rw[i, j] = (F[i, 0] * rbox_T[b, 0, j] + F[i, 1] * rbox_T[b, 1, j]
-                                + F[i, 2] * rbox_T[b, 2, j])
-            for i in range(3):
-                p[i] = rbox_T[b, i, 3]
-            _apply(F, p, cw)
+            _place(frames[n, rbox_frame[b]], rbox_T[b], Rw, cw)
             for m in range(box_c.shape[0]):
                 dx, dy, dz = cw[0] - box_c[m, 0], cw[1] - box_c[m, 1], cw[2] - box_c[m, 2]
                 reach = rbox_r[b] + box_r[m]
