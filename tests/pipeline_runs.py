@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -30,9 +31,16 @@ def run(store: Path, *overrides: str, cwd: Path | None = None) -> subprocess.Com
 
 
 def start(store: Path, *overrides: str, cwd: Path | None = None) -> subprocess.Popen:
+    """A run in the background, as a user's terminal would start it: Ctrl-C (SIGINT)
+    interrupts it even when these tests run where SIGINT is ignored (a shell's background
+    job), which the child would otherwise inherit."""
     return subprocess.Popen(command(store, *overrides), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, cwd=cwd or store.parent,
-                            env=env(), start_new_session=True)
+                            env=env(), start_new_session=True, preexec_fn=_default_sigint)
+
+
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def matrix(store: Path) -> dict[str, np.ndarray]:
