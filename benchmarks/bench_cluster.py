@@ -15,18 +15,13 @@ import argparse
 import json
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-from rich.console import Console
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_pipeline import prepared, timed_scores  # noqa: E402
-
-from pipeline import configs  # noqa: E402
-from pipeline.store import ScoreStore  # noqa: E402
+from bench_pipeline import planar_setup, timed_scores  # noqa: E402
 
 DASK = Path(sys.executable).parent / "dask"
 
@@ -52,14 +47,7 @@ def main() -> None:
     ap.add_argument("--m", type=int, default=40)
     ap.add_argument("--rounds", type=int, default=3)
     args = ap.parse_args()
-    configs.register_configs()
-    console = Console(file=sys.stderr, quiet=True)
-    tmp = Path(tempfile.mkdtemp(prefix="bench-cluster-"))
-    real = [f"instances.n={args.n}", f"constraints.m={args.m}", "store.block_instances=12",
-            "store.block_constraints=20"]
-    store = tmp / "planar.zarr"
-    prepared(store, real, console)
-    entries = args.n * ScoreStore.open(store).stage_info("constraints")["m"]
+    tmp, real, store, entries, console = planar_setup(args.n, args.m, "bench-cluster-")
     address, procs = start_address_cluster(tmp, 2)
     try:
         local = [*real, "cluster.n_workers=2"]

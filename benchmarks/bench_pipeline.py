@@ -41,6 +41,21 @@ def prepared(store: Path, overrides: list[str], console: Console) -> None:
         stages.run_pipeline(cfg, console)
 
 
+def planar_setup(n: int, m: int, prefix: str):
+    """A temporary folder with a planar store of ``n`` instances and up to ``m``
+    constraints prepared (:func:`prepared`): (folder, its overrides, store, entries of D,
+    a quiet console)."""
+    configs.register_configs()
+    console = Console(file=sys.stderr, quiet=True)
+    tmp = Path(tempfile.mkdtemp(prefix=prefix))
+    real = [f"instances.n={n}", f"constraints.m={m}", "store.block_instances=12",
+            "store.block_constraints=20"]
+    store = tmp / "planar.zarr"
+    prepared(store, real, console)
+    entries = n * ScoreStore.open(store).stage_info("constraints")["m"]
+    return tmp, real, store, entries, console
+
+
 def timed_scores(store: Path, overrides: list[str], console: Console) -> tuple[float, float]:
     """(cluster start-up seconds, scores-stage seconds) for a fresh scores stage."""
     cfg = compose_cfg(store, ["stage=scores", *overrides])
@@ -89,15 +104,7 @@ def main() -> None:
     ap.add_argument("--noop-n", type=int, default=2000)
     ap.add_argument("--noop-m", type=int, default=200)
     args = ap.parse_args()
-    configs.register_configs()
-    console = Console(file=sys.stderr, quiet=True)
-    tmp = Path(tempfile.mkdtemp(prefix="bench-pipeline-"))
-
-    real = [f"instances.n={args.n}", f"constraints.m={args.m}", "store.block_instances=12",
-            "store.block_constraints=20"]
-    store = tmp / "planar.zarr"
-    prepared(store, real, console)
-    entries = args.n * ScoreStore.open(store).stage_info("constraints")["m"]
+    tmp, real, store, entries, console = planar_setup(args.n, args.m, "bench-pipeline-")
     # this machine's speed drifts by 20-30 % over minutes: interleave, take medians, and
     # compare within a round
     rows = []
