@@ -42,6 +42,14 @@ class StoreMode(enum.Enum):
     overwrite = "overwrite"  # replace a store of ours made with a different config
 
 
+class EnvironmentPolicy(enum.Enum):
+    """What a run does with blocks computed in an environment (CPU, libraries, source) that
+    differs from the one that computed a store's other blocks (docs/reproducibility.md)."""
+
+    allow = "allow"  # record it per block and say so in one line
+    refuse = "refuse"  # keep the store to one environment: stop with one line instead
+
+
 class ClusterKind(enum.Enum):
     local = "local"
     address = "address"
@@ -64,6 +72,7 @@ class StoreConfig:
     mode: StoreMode = StoreMode.resume
     block_instances: int = 25  # a task computes one block = one chunk of every score array
     block_constraints: int = 60
+    environment: EnvironmentPolicy = EnvironmentPolicy.allow
     #: passed to the fsspec filesystem of a URL store.path (endpoint_url, key, secret, ...)
     storage_options: dict[str, Any] = field(default_factory=dict)
 

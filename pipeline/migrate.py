@@ -1,17 +1,25 @@
-"""Bringing a store of an older layout to the current one (in place, keeping every entry).
+"""Bringing a store of an older layout to the current one (in place, keeping every entry),
+one layout at a time.
 
 Layout 1 → 2: integrity tables are recorded from the current contents (blocks whose chunks
 no longer decode are marked not done, so the next run computes them again), chunks that
 were never written because they held only fill values are written, and the coordinates that
 xarray shows are added.
+
+Layout 2 → 3: ``raw`` and ``scores`` get their ``environment`` array, -1 ("not recorded")
+for every entry, and their integrity tables a column for it; the recorded digests of every
+other array are kept as they are (nothing is re-read, so nothing unverified is adopted).
+Each step can be interrupted and run again.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from pipeline import integrity
+from pipeline.integrity import digest
 from pipeline.store import (
-    LAYOUT_VERSION,
+    ENVIRONMENT,
     RAW_CONSTRAINT,
     THETA,
     ScoreStore,
@@ -24,7 +32,17 @@ from pipeline.store import (
 
 
 def migrate(store: ScoreStore, domain) -> list[str]:
-    """Migrate ``store`` (opened for writing, lock held); return what was done."""
+    """Migrate ``store`` (opened for writing, lock held) to the current layout; return what
+    was done, a line per step."""
+    notes = []
+    if store.layout_version < 2:
+        notes += [f"layout 2: {note}" for note in to_layout_2(store, domain)]
+    if store.layout_version < 3:
+        notes += [f"layout 3: {note}" for note in to_layout_3(store)]
+    return notes
+
+
+def to_layout_2(store: ScoreStore, domain) -> list[str]:
     notes = []
     stages = store.attrs.get("stages", {})
     seeds = store.instance_seeds() if "instances" in stages else None
@@ -52,8 +70,42 @@ def migrate(store: ScoreStore, domain) -> list[str]:
         store.create_table("scores", [*names, *coords])
         notes.append(f"scores: {_adopt(store, 'scores')} blocks adopted")
     store.forget_stage("evaluate")  # recomputed with its inputs recorded
-    store.root.attrs["layout_version"] = LAYOUT_VERSION
+    store.root.attrs["layout_version"] = 2
     return notes
+
+
+def to_layout_3(store: ScoreStore) -> list[str]:
+    notes = []
+    for group in ("raw", "scores"):
+        if store.has_results(group) and store.has_table(group):
+            notes.append(f"{group}: {_add_environment(store, group)} blocks of unrecorded "
+                         "environment")
+    store.root.attrs["layout_version"] = 3
+    return notes
+
+
+def _add_environment(store: ScoreStore, group: str) -> int:
+    """Add ``group``'s environment array (-1 everywhere) and its integrity column; return
+    the number of recorded blocks it covers."""
+    layout = store.layout(group)
+    if ENVIRONMENT in layout.names:  # an interrupted migration got this far
+        return len(store.finished_blocks(group))
+    done = store.array(f"{group}/done")
+    env = store.create_environment(group, done.shape, done.chunks,
+                                   done.metadata.dimension_names)
+    old = store.array(f"{integrity.GROUP}/{group}")[...]
+    rows = np.zeros((*old.shape[:-1], old.shape[-1] + 1), dtype="uint64")
+    recorded = 0
+    for block in np.ndindex(*old.shape[:-1]):
+        if np.all(old[block] != integrity.NOT_RECORDED):
+            rows[block] = [*old[block], digest(env.blocks[block])]
+            recorded += 1
+    table = store.array(f"{integrity.GROUP}/{group}")
+    attrs = dict(table.attrs)
+    store.create(f"{integrity.GROUP}/{group}", rows.shape, table.chunks[:-1] + (rows.shape[-1],),
+                 "uint64", 0, table.metadata.dimension_names,
+                 **{**attrs, "arrays": [*layout.names, ENVIRONMENT]})[...] = rows
+    return recorded
 
 
 def _data_names(store: ScoreStore, group: str) -> list[str]:

@@ -25,7 +25,7 @@ from omegaconf import OmegaConf
 from rich.console import Console
 
 from box_core import SELECTOR_REVISION
-from pipeline import configs, validation, worker
+from pipeline import configs, environment, validation, worker
 from pipeline.configs import Stage
 from pipeline.context import StageContext
 from pipeline.domains import ConstraintSet, load_domain
@@ -33,7 +33,9 @@ from pipeline.evaluation import stored_revision
 from pipeline.execution import Task, connect_first, dask_client, run_tasks
 from pipeline.integrity import Damage, digest
 from pipeline.location import locate
+from pipeline.provenance import Provenance
 from pipeline.store import (
+    ENVIRONMENT,
     INSTANCE_SEED,
     INSTANCE_SPEC,
     LAYOUT_VERSION,
@@ -142,7 +144,7 @@ class Run:
             from pipeline.migrate import migrate
 
             for note in migrate(self.store, self.domain):
-                self.say(f"store: migrated to layout {LAYOUT_VERSION}; {note}")
+                self.say(f"store: migrated to {note}")
         self.writing = True
         return self.store
 
@@ -170,7 +172,8 @@ class Run:
                             console=self.console, client=lambda: self.client)
 
     def say(self, text: str) -> None:
-        self.console.print(text, highlight=False)
+        """One line, never wrapped (logs and terminals alike)."""
+        self.console.print(text, highlight=False, soft_wrap=True)
 
     def require(self, stage: str, needed_by: str) -> None:
         if self.store is None or self.store.stage_info(stage) is None:
@@ -232,11 +235,26 @@ class Run:
             self.store.write_coords(group, coords, names)
         return sorted(pending)
 
+    def worker_environments(self) -> list[dict]:
+        """The distinct environments of the workers connected now (this process's when
+        they cannot be asked)."""
+        try:
+            found = list(self.client.run(environment.fingerprint).values())
+        except Exception:  # noqa: BLE001 (the watchdog reports unusable workers)
+            found = []
+        return [r for k, r in enumerate(found) if r not in found[:k]] or \
+            [environment.fingerprint()]
+
     def run_blocks(self, group: str, tasks: list[Task], label: str) -> Counter:
         statuses: Counter = Counter()
+        provenance = Provenance(self.store, group, self.cfg.store.environment, self.say)
+        if tasks:
+            provenance.before(self.worker_environments())
 
         def finished(task: Task, result: tuple[dict, dict]) -> None:
             arrays, report = result
+            where = provenance.index(report["environment"])
+            arrays[ENVIRONMENT] = np.full(np.shape(arrays["status"]), where, dtype="int16")
             self.store.write_block(group, task.block, arrays)
             statuses.update(report["status"])
             for message in report["errors"]:

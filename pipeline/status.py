@@ -8,7 +8,9 @@ from rich.console import Console
 from rich.table import Table
 
 from pipeline import integrity
+from pipeline.environment import describe, difference
 from pipeline.integrity import Damage
+from pipeline.provenance import WHY
 from pipeline.store import BLOCK_DIMS, ScoreStore, StoreError, StoreLock
 
 STAGE_GROUPS = {"instances": "instances", "raw": "raw", "constraints": "constraints",
@@ -77,13 +79,50 @@ def collect(path) -> dict:
     for key in damage.arrays:
         report["damaged"][key] = {"corrupted": len(damage.corrupted.get(key, ())),
                                   "missing": len(damage.missing.get(key, ()))}
+    report["environments"] = _environments(store)
     return report
+
+
+def _environments(store: ScoreStore) -> list[dict]:
+    """Each environment that computed finished entries: its index (-1: not recorded), its
+    entries per group, and the environment itself (None when not recorded)."""
+    table = store.environments()
+    used: dict[int, dict[str, int]] = {}
+    for group in ("raw", "scores"):
+        try:
+            counts = store.environments_used(group)
+        except Exception:  # noqa: BLE001 (a damaged array: reported as damage above)
+            continue
+        for index, entries in counts.items():
+            used.setdefault(index, {})[group] = entries
+    return [{"index": index, "entries": entries,
+             "environment": table[index] if 0 <= index < len(table) else None}
+            for index, entries in sorted(used.items())]
 
 
 def damaged(report: dict) -> str:
     """The damaged arrays of a status report in words ("" when there is none)."""
     return "; ".join(f"{key} ({', '.join(f'{n} {kind}' for kind, n in counts.items() if n)} "
                      "blocks)" for key, counts in report["damaged"].items())
+
+
+def _print_environments(found: list[dict], console: Console) -> None:
+    if not found:
+        return
+    table = Table(title="environments that computed the entries")
+    for col in ("#", "raw", "scores", "environment"):
+        table.add_column(col)
+    for e in found:
+        what = describe(e["environment"]) if e["environment"] else \
+            "not recorded (computed before layout 3)"
+        table.add_row(str(e["index"]), str(e["entries"].get("raw", 0)),
+                      str(e["entries"].get("scores", 0)), what)
+    console.print(table)
+    known = [e["environment"] for e in found if e["environment"]]
+    if len(found) > 1:
+        change = f" ({difference(known[0], known[1])})" if len(known) > 1 else ""
+        console.print(f"[yellow]computed in {len(found)} environments{change}: {WHY}",
+                      highlight=False, soft_wrap=True)
 
 
 def print_status(path, console: Console) -> dict:
@@ -114,6 +153,7 @@ def print_status(path, console: Console) -> dict:
         arrays.add_row(a["array"], ", ".join(a["dims"]), " x ".join(map(str, a["shape"])),
                        f"{a['chunks_written']}/{a['chunks']}", bad, gone)
     console.print(arrays)
+    _print_environments(report["environments"], console)
     if report["damaged"]:
         console.print(f"[red]corrupted chunks found: {damaged(report)}; re-run the same "
                       "command to recompute them", highlight=False)

@@ -4,14 +4,14 @@ Layout (a contract: users open it with ``xarray.open_zarr(path, group=...)`` or
 ``xarray.open_datatree(path, engine="zarr")``)::
 
     /                 attrs: format, layout_version, identity, config_hash, config,
-                             versions, git_revision, created, stages
+                             versions, git_revision, created, stages, environments
     instances/        seed (instance), spec (instance; JSON text)
-    raw/              score length feasible time status checks step tries (instance),
-                      constraint (instance, feature), done (instance);
+    raw/              score length feasible time status checks step tries environment
+                      (instance), constraint (instance, feature), done (instance);
                       coordinates instance_seed (instance), feature (feature)
     constraints/      theta (constraint, feature), source_instance (constraint);
                       coordinate feature (feature)
-    scores/           score length feasible time status checks step done
+    scores/           score length feasible time status checks step environment done
                       (instance, constraint); coordinates instance_seed (instance),
                       constraint_source (constraint)
     evaluation/       per selector: order, first_feasible_step, first_feasible_time,
@@ -23,7 +23,9 @@ only the coordinating process writes the store (arrays, ``done`` masks, integrit
 attributes).  A block is written in the order data chunks, integrity row, ``done``: a run
 killed in between leaves a block that is simply computed again.  Every chunk is written
 even when it holds only fill values, carries a CRC32C checksum, and has its values' digest
-recorded.
+recorded.  ``environment`` holds, for every entry of a block, the index in the root
+attribute ``environments`` of the environment (CPU, libraries, source) of the worker that
+computed the block (``pipeline/environment.py``; -1: computed before layout 3).
 """
 
 from __future__ import annotations
@@ -49,8 +51,9 @@ from pipeline.locking import LOCK_SUFFIX, StoreLock  # noqa: F401 (re-exported)
 from pipeline.planning import Status
 
 FORMAT = "box-planning-score-store"
-#: 1: the first layout; 2: integrity tables, coordinates, every chunk written.
-LAYOUT_VERSION = 2
+#: 1: the first layout; 2: integrity tables, coordinates, every chunk written; 3: the
+#: environment that computed each block (``environment`` arrays, ``environments`` table).
+LAYOUT_VERSION = 3
 CODECS = (ZstdCodec(level=3), Crc32cCodec())
 WRITE_CONFIG = {"write_empty_chunks": True}
 
@@ -80,6 +83,10 @@ INSTANCE_SPEC = "instances/spec"
 RAW_CONSTRAINT = "raw/constraint"
 THETA = "constraints/theta"
 SOURCE_INSTANCE = "constraints/source_instance"
+#: The per-entry index into the root attribute ENVIRONMENTS (raw and scores).
+ENVIRONMENT = "environment"
+ENVIRONMENTS = "environments"
+UNKNOWN_ENVIRONMENT = -1
 
 
 def result_key(group: str, name: str) -> str:
@@ -325,11 +332,51 @@ class ScoreStore:
         for name, shp, chk, dtype, fill, dms, attrs in extra:
             self.create(f"{group}/{name}", shp, chk, dtype, fill, dms, **attrs)
             names.append(name)
+        self.create_environment(group, shape, chunks, dims)
+        names.append(ENVIRONMENT)
         self.create(f"{group}/done", shape, chunks, "bool", False, dims,
                     description="entries whose block finished (written by the coordinator)")
         names.append("done")
         self.write_coords(group, coords, names)
         self.create_table(group, [*names, *coords])
+
+    def create_environment(self, group: str, shape, chunks, dims) -> zarr.Array:
+        """``group``'s environment array, every chunk written as -1 (not recorded)."""
+        arr = self.create(
+            result_key(group, ENVIRONMENT), shape, chunks, "int16", UNKNOWN_ENVIRONMENT, dims,
+            description="index into the root attribute 'environments' of the environment "
+                        "that computed the entry's block; -1: not recorded (computed before "
+                        "layout 3)")
+        arr[...] = UNKNOWN_ENVIRONMENT
+        return arr
+
+    # -- environments ------------------------------------------------------------------------
+    def environments(self) -> list[dict]:
+        """The table of environments that computed blocks (``pipeline/environment.py``)."""
+        return list(self.attrs.get(ENVIRONMENTS) or [])
+
+    def environment_index(self, record: dict) -> int:
+        """The index of ``record`` in the table, added (before any block refers to it) when
+        it is new."""
+        table = self.environments()
+        if record in table:
+            return table.index(record)
+        self.root.attrs[ENVIRONMENTS] = [*table, record]
+        return len(table)
+
+    def environments_used(self, group: str, blocks=None) -> dict[int, int]:
+        """Entries of ``group`` per environment index (-1: not recorded), over its finished
+        ``blocks`` (default: every entry whose block is done); {} before layout 3."""
+        if not self.has(result_key(group, ENVIRONMENT)):
+            return {}
+        arr = self.array(result_key(group, ENVIRONMENT))
+        if blocks is None:
+            values = arr[...][self.done(group)]
+        else:
+            parts = [arr[block_region(b, arr.chunks)].reshape(-1) for b in blocks]
+            values = np.concatenate(parts) if parts else np.zeros(0, dtype="int16")
+        found, counts = np.unique(values, return_counts=True)
+        return {int(k): int(c) for k, c in zip(found, counts, strict=True)}
 
     def write_coords(self, group: str, coords: dict, data_names) -> None:
         """Coordinate arrays of ``group`` (chunked like the block axes), named in each data

@@ -16,6 +16,7 @@ from collections import Counter
 import numpy as np
 
 from pipeline.domains.cache import domain_for
+from pipeline.environment import fingerprint
 from pipeline.planning import PlanResult, Status
 from pipeline.planning.registry import planner_class
 from pipeline.store import RESULT_COLUMNS
@@ -86,5 +87,7 @@ def _summary(results: list[PlanResult], t0: float) -> dict:
 
 
 def _report(status: Counter, errors: list[str], t0: float) -> dict:
+    """What the coordinator logs and records with the block: status counts, errors, time,
+    and the environment that computed it (``pipeline/environment.py``)."""
     return {"n": sum(status.values()), "status": dict(status), "errors": errors,
-            "seconds": time.perf_counter() - t0}
+            "seconds": time.perf_counter() - t0, "environment": fingerprint()}

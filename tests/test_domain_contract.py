@@ -21,9 +21,11 @@ import pytest
 
 from pipeline.domains import DOMAINS, ConstraintSet, InstanceError, load_domain
 from pipeline.domains.planar import PlanarScene
+from pipeline.environment import agree
 from pipeline.planning import PLANNERS, PlannerSettings, PlanResult, Status, make_planner
 from pipeline.planning.base import CAPABILITIES, capabilities
 from pipeline.planning.registry import planner_class
+from tests.replay import child_env, code_paths
 
 PAIRS = [(d, p) for d in DOMAINS for p in PLANNERS]
 ENTRIES = 2  # planning calls per check: pick_place and trajopt calls cost ~0.1-1 s each
@@ -132,14 +134,40 @@ print(json.dumps(out))
 """
 
 
-@pytest.mark.parametrize("domain,planner", PAIRS)
-def test_plans_are_identical_in_another_process(domain, planner):
-    domain_or_skip(domain, planner)
-    here = [list(summary(r)) for r in planned(domain, planner)]
+def in_child(domain: str, planner: str, env: dict[str, str]) -> list[list]:
+    """The checked calls planned in a fresh process with ``env`` set (and nothing this
+    process's environment picked up, such as a Dask nanny's OPENBLAS_NUM_THREADS=1)."""
     sent = [(spec, [float(v) for v in row], s) for spec, row, s in calls(domain)]
     out = subprocess.run([sys.executable, "-c", PROCESS_CODE, domain, planner,
-                          json.dumps(sent)], capture_output=True, text=True, check=True)
-    assert json.loads(out.stdout.strip().splitlines()[-1]) == here
+                          json.dumps(sent)], capture_output=True, text=True, check=True,
+                         env=child_env(env))
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("threads", ["1", "2"])
+@pytest.mark.parametrize("domain,planner", PAIRS)
+def test_plans_are_identical_in_another_process(domain, planner, threads):
+    """Bitwise, in a process with one BLAS thread (a Dask worker) or two (a notebook)."""
+    domain_or_skip(domain, planner)
+    here = [list(summary(r)) for r in planned(domain, planner)]
+    assert in_child(domain, planner, {"OPENBLAS_NUM_THREADS": threads}) == here
+
+
+@pytest.mark.parametrize("domain,planner", PAIRS)
+def test_plans_keep_the_contract_on_other_cpu_code_paths(domain, planner):
+    """With NumPy and OpenBLAS forced onto an older CPU's kernels: statuses, checks and
+    steps exact, scores and every path coordinate within the contract's tolerance
+    (docs/reproducibility.md)."""
+    domain_or_skip(domain, planner)
+    paths = {k: v for k, v in code_paths().items() if not k.startswith("blas-")}
+    if not paths:
+        pytest.skip("no other CPU code path can be forced on this machine")
+    here = [summary(r) for r in planned(domain, planner)]
+    for name, env in paths.items():
+        for a, b in zip(here, in_child(domain, planner, env), strict=True):
+            assert list(a[:3]) == b[:3], name
+            assert agree(float(a[3]), float(b[3])), name
+            assert agree(*(np.frombuffer(bytes.fromhex(x[4])) for x in (a, b))), name
 
 
 @pytest.mark.parametrize("domain,planner", PAIRS)

@@ -1,64 +1,85 @@
-"""Stored figures survive code changes: entries of small stores made by an earlier version
-(``tests/data/replay.json``, written by ``tests/data/make_replay.py``) replay unchanged
-from their seeds: status, feasibility, score, failed step and collision checks."""
+"""Stored figures survive code changes and machines: entries of small stores
+(``tests/data/replay.json``, written by ``tests/data/make_replay.py``) replay from their
+seeds under the reproducibility contract (docs/reproducibility.md): status, feasibility,
+failed step and collision checks exactly, scores and extracted constraints within
+``pipeline.environment.RTOL``/``ATOL``; and bitwise alike in every process of one
+environment, whatever its BLAS thread count.
+
+The stores were made on another machine than most that run this, so the first test is
+itself a comparison across machines; the others force this machine's NumPy and OpenBLAS
+onto other kernels (as an older CPU would run) in a child process.
+"""
 
 from __future__ import annotations
 
+import functools
 import json
-import math
-from pathlib import Path
 
-import numpy as np
 import pytest
 
-from pipeline.domains import load_domain
+from pipeline.environment import ATOL, RTOL
+from tests import replay
 
-STORES = json.loads((Path(__file__).parent / "data" / "replay.json").read_text())
-
-
-def domain_of(store: dict):
-    """The store's domain and planner; the wall-clock safety net out of reach, so that a
-    loaded machine cannot turn a stored entry into "timeout"."""
-    config = {k: v for k, v in store["domain"].items() if k != "name"}
-    planner = {**store["planner"], "wall_cap_s": 1e6}
-    return load_domain(store["domain"]["name"], planner=planner, **config)
+DOC = replay.stored()
+STORES = DOC["stores"]
+IDS = [s["store"] for s in STORES]
 
 
-def same(stored: float | None, replayed: float) -> bool:
-    """Equal up to the last bits: TrajOpt's linear algebra rounds differently under
-    multi-threaded BLAS (Dask workers run single-threaded); everything else is exact."""
-    if stored is None:
-        return math.isnan(replayed)
-    return math.isclose(stored, replayed, rel_tol=1e-12, abs_tol=1e-12)
+@functools.cache
+def here() -> tuple[dict, ...]:
+    """This process's replay of every store (shared by the tests below)."""
+    return tuple(replay.replay_store(s) for s in STORES)
 
 
-def step_index(domain, result) -> int:
-    return domain.steps.index(result.step) if result.step else -1
+def test_the_file_records_the_contract_it_was_measured_under():
+    assert DOC["contract"] == {"rtol": RTOL, "atol": ATOL}
+    assert DOC["measured"] and all(m["breaches"] == 0 for m in DOC["measured"].values())
+    assert all(m["largest_relative_difference"] < RTOL for m in DOC["measured"].values())
 
 
-@pytest.mark.parametrize("store", STORES, ids=[s["store"] for s in STORES])
-def test_stored_entries_replay(store):
-    domain = domain_of(store)
-    theta = np.asarray(store["theta"], float)
-    for e in store["entries"]:
-        got = domain.plan(store["instances"][e["instance"]], theta[e["constraint"]],
-                          seed=e["seed"])
-        where = f"entry ({e['instance']}, {e['constraint']})"
-        assert int(got.status) == e["status"], where
-        assert got.feasible == e["feasible"], where
-        assert same(e["score"], got.score), where
-        assert step_index(domain, got) == e["step"], where
-        assert got.checks == e["checks"], where
+@pytest.mark.parametrize("k", range(len(STORES)), ids=IDS)
+def test_stored_entries_and_raw_solutions_replay_within_the_contract(k):
+    assert replay.compare(STORES[k], here()[k]) == []
 
 
-@pytest.mark.parametrize("store", STORES, ids=[s["store"] for s in STORES])
-def test_stored_raw_solutions_replay(store):
-    domain = domain_of(store)
-    for r in store["raw"]:
-        got = domain.raw_plan(store["instances"][r["instance"]], seed=r["seed"])
-        where = f"raw solution of instance {r['instance']}"
-        assert int(got.plan.status) == r["status"], where
-        assert same(r["score"], got.plan.score), where
-        assert step_index(domain, got.plan) == r["step"], where
-        assert got.plan.checks == r["checks"], where
-        assert all(same(a, b) for a, b in zip(r["constraint"], got.constraint, strict=True)), where
+@pytest.fixture(scope="module")
+def forced(tmp_path_factory):
+    """Every forced code path's replay, from child processes: name -> (env, result)."""
+    out = tmp_path_factory.mktemp("forced")
+    return {name: (env, replay.replay_in_child(env, out / f"{name}.json"))
+            for name, env in replay.code_paths().items()}
+
+
+def test_forced_code_paths_really_change_the_environment(forced):
+    """Each child ran as asked: NumPy's SIMD and OpenBLAS's kernels are recorded in the
+    environment's fingerprint, so a path that did not take effect would show here."""
+    from pipeline.environment import fingerprint
+
+    mine = fingerprint()
+    for name, (env, result) in forced.items():
+        theirs = result["environment"]
+        if "NPY_DISABLE_CPU_FEATURES" in env:
+            assert theirs["simd"] == "" != mine["simd"], name
+        if "OPENBLAS_CORETYPE" in env:
+            assert theirs["blas"] != mine["blas"], name
+        if "OPENBLAS_CORETYPE" not in env and "NPY_DISABLE_CPU_FEATURES" not in env:
+            assert theirs == mine, name  # thread counts are not part of the environment
+    if len(forced) < 5:
+        pytest.skip(f"only {sorted(forced)} can be forced on this machine")
+
+
+@pytest.mark.parametrize("k", range(len(STORES)), ids=IDS)
+def test_other_cpu_code_paths_keep_the_contract(forced, k):
+    for name, (_, result) in forced.items():
+        assert replay.compare(here()[k], result["stores"][k]) == [], name
+        assert replay.compare(STORES[k], result["stores"][k]) == [], name
+
+
+def test_one_environment_is_bitwise_whatever_the_blas_threads(forced):
+    """A Dask worker (one BLAS thread), a notebook (one per core) and this process give
+    the very same bits, TrajOpt included."""
+    threads = [result["stores"] for name, (_, result) in forced.items()
+               if name.startswith("blas-")]
+    assert len(threads) == 2
+    mine = json.loads(json.dumps(list(here())))  # through JSON, as the children's
+    assert threads[0] == threads[1] == mine

@@ -48,7 +48,7 @@ def _as_layout_1(store):
     g = zarr.open_group(store, mode="r+", use_consolidated=False)
     del g["integrity"]
     for key in ("scores/instance_seed", "scores/constraint_source", "raw/instance_seed",
-                "raw/feature", "constraints/feature"):
+                "raw/feature", "constraints/feature", "scores/environment", "raw/environment"):
         del g[key]
     for group in ("raw", "scores", "constraints"):
         for _, arr in g[group].arrays():
@@ -57,11 +57,13 @@ def _as_layout_1(store):
     stages = {k: {f: v for f, v in info.items() if f not in ("inputs", "outputs")}
               for k, info in g.attrs["stages"].items()}
     g.attrs.update({"layout_version": 1, "stages": stages})
+    del g.attrs["environments"]
     zarr.consolidate_metadata(store)
 
 
 def test_a_layout_1_store_is_read_then_migrated_without_recomputing(made, tmp_path):
-    """Re-running it finished writes nothing; the first run with work migrates it."""
+    """Re-running it finished writes nothing; the first run with work migrates it (to
+    layout 2, then 3)."""
     copy = tmp_path / "old.zarr"
     shutil.copytree(made[0], copy)
     _as_layout_1(copy)
@@ -74,9 +76,10 @@ def test_a_layout_1_store_is_read_then_migrated_without_recomputing(made, tmp_pa
     assert "scores: already complete" in res.stdout and "migrated" not in res.stdout
     res = pr.run(copy, "stage=evaluate", "evaluate.k=5")
     assert res.returncode == 0, res.stderr + res.stdout
-    assert "migrated to layout 2" in res.stdout and "dask:" not in res.stdout
+    assert "migrated to layout 2" in res.stdout and "migrated to layout 3" in res.stdout
+    assert "dask:" not in res.stdout
     res = CliRunner().invoke(app, ["status", str(copy), "--json"])
     doc = json.loads(res.output)
-    assert res.exit_code == 0 and doc["layout_version"] == 2 and not doc["damaged"]
+    assert res.exit_code == 0 and doc["layout_version"] == 3 and not doc["damaged"]
     assert pr.same_matrix(pr.matrix(made[0]), pr.matrix(copy))
     assert "instance_seed" in xr.open_zarr(copy, group="scores").coords

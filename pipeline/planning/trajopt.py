@@ -35,6 +35,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import minimize
 
 from pipeline.planning.base import DistanceModel, recheck
+from pipeline.planning.blas import single_thread
 from pipeline.planning.interface import Planner
 from pipeline.planning.result import PlanResult, Status, path_length
 
@@ -180,10 +181,17 @@ class _Problem:
 
 def optimise(start, goal, lower, upper, contacts: DistanceModel,
              opts: TrajOptOptions | None = None, deadline: float | None = None) -> TrajOptResult:
-    """Optimise a trajectory from ``start`` to ``goal`` (see the module docstring)."""
+    """Optimise a trajectory from ``start`` to ``goal`` (see the module docstring), with
+    one BLAS thread, so that the result is the same in every process of a machine
+    (``pipeline/planning/blas.py``)."""
     opts = opts or TrajOptOptions()
     if opts.waypoints < 3:
         raise ValueError(f"trajopt needs at least 3 waypoints, got {opts.waypoints}")
+    with single_thread():
+        return _optimise(start, goal, lower, upper, contacts, opts, deadline)
+
+
+def _optimise(start, goal, lower, upper, contacts, opts, deadline) -> TrajOptResult:
     t0 = time.perf_counter()
     p = _Problem(start, goal, lower, upper, opts, contacts)
     z = straight_line(p.start, p.goal, opts.waypoints)[1:-1].reshape(-1)

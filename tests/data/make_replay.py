@@ -1,34 +1,45 @@
-"""Write ``tests/data/replay.json`` from small stores made by an earlier version.
+"""Write ``tests/data/replay.json`` from small stores, and measure the reproducibility
+contract's tolerance on this machine.
 
 Each store contributes its domain and planner configuration, a few instance specs, its
 constraints, and for some entries the planning seed and what was stored (status,
 feasible, score, step, checks), plus some RAWPLANNER results.  ``tests/test_replay.py``
-replays these from their seeds with the current code; a difference means stored figures
-would not survive the change.
+replays these from their seeds with the current code, on any machine: discrete outcomes
+must be equal, floats within ``pipeline.environment.RTOL``/``ATOL`` (docs/reproducibility.md).
+
+Beside the entries the file records the contract's tolerance, the environment the stores
+were replayed in here (``made_in``), and ``measured``: for each code path that
+``tests.replay.code_paths`` forces on this machine (NumPy without its SIMD kernels,
+OpenBLAS with an older core's kernels, one or two BLAS threads), the largest relative
+difference from this machine's own replay and the number of contract breaches.  The script
+refuses to write a file whose tolerance its own measurement breaks.
 
 Run: python tests/data/make_replay.py STORE.zarr [STORE.zarr ...]
 (stores made with e.g. ``python -m pipeline stage=generate domain=planar instances.n=8
-constraints.m=8 store.path=/tmp/ref/planar.zarr``).
+constraints.m=8 store.path=/tmp/ref/planar.zarr``; the file in the repository was made
+from planar, grasp_arm and grasp_base with rrt_connect and trajopt, and pick_place).
 """
 
 from __future__ import annotations
 
 import json
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import zarr
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+from pipeline.environment import ATOL, RTOL, fingerprint  # noqa: E402
+from pipeline.worker import RAW_ENTRY, entry_seed  # noqa: E402
+from tests import replay  # noqa: E402
+
 OUT = Path(__file__).with_name("replay.json")
 #: entries kept per store (pick_place calls cost ~0.1-0.4 s each, the others ~10 ms)
 ENTRIES = {"pick_place": 10}
 RAWS = {"pick_place": 1, "grasp_base": 3}
-RAW_ENTRY = 2**40  # the constraint index standing for RAWPLANNER in entry seeds
-
-
-def entry_seed(run_seed: int, instance_seed: int, constraint: int) -> int:
-    return int(np.random.SeedSequence([run_seed, instance_seed, constraint]).generate_state(1)[0])
 
 
 def number(x: float) -> float | None:
@@ -65,6 +76,32 @@ def from_store(path: str) -> dict:
             "instances": specs, "theta": theta.tolist(), "entries": entries, "raw": raws}
 
 
+def measure(stores: list[dict]) -> dict:
+    """Replay ``stores`` here and under every forced code path; the largest relative
+    difference and the contract breaches of each path against this machine's replay."""
+    here = [replay.replay_store(s) for s in stores]
+    measured = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, env in replay.code_paths().items():
+            got = replay.replay_in_child(env, Path(tmp) / f"{name}.json")["stores"]
+            measured[name] = {
+                "env": env,
+                "largest_relative_difference": max(
+                    replay.largest_difference(a, b) for a, b in zip(here, got, strict=True)),
+                "breaches": sum(len(replay.compare(a, b)) for a, b in
+                                zip(here, got, strict=True))}
+            print(f"{name:22s} {measured[name]['largest_relative_difference']:.2e} "
+                  f"relative, {measured[name]['breaches']} breaches")
+    return measured
+
+
 if __name__ == "__main__":
-    OUT.write_text(json.dumps([from_store(p) for p in sys.argv[1:]], indent=None) + "\n")
+    stores = [from_store(p) for p in sys.argv[1:]]
+    OUT.write_text(json.dumps({"stores": stores}) + "\n")  # replay.code_paths reads them
+    measured = measure(stores)
+    doc = {"contract": {"rtol": RTOL, "atol": ATOL}, "made_in": fingerprint(),
+           "measured": measured, "stores": stores}
+    OUT.write_text(json.dumps(doc) + "\n")
     print(f"wrote {OUT} ({OUT.stat().st_size / 1e3:.0f} kB)")
+    if any(m["breaches"] for m in measured.values()):
+        sys.exit("the contract's tolerance is too tight for what this machine measured")
