@@ -106,8 +106,11 @@ def damaged(report: dict) -> str:
                      "blocks)" for key, counts in report["damaged"].items())
 
 
-def _print_environments(found: list[dict], console: Console) -> None:
+def _print_environments(found: list[dict], layout: int, console: Console) -> None:
     if not found:
+        if layout < 3:
+            console.print(f"environments: not recorded (layout {layout}; recorded from layout 3 "
+                          "on, by the next run that writes to the store)", highlight=False)
         return
     table = Table(title="environments that computed the entries")
     for col in ("#", "raw", "scores", "environment"):
@@ -153,7 +156,7 @@ def print_status(path, console: Console) -> dict:
         arrays.add_row(a["array"], ", ".join(a["dims"]), " x ".join(map(str, a["shape"])),
                        f"{a['chunks_written']}/{a['chunks']}", bad, gone)
     console.print(arrays)
-    _print_environments(report["environments"], console)
+    _print_environments(report["environments"], report["layout_version"], console)
     if report["damaged"]:
         console.print(f"[red]corrupted chunks found: {damaged(report)}; re-run the same "
                       "command to recompute them", highlight=False)

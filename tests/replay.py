@@ -117,11 +117,15 @@ def code_paths() -> dict[str, dict[str, str]]:
     out (nothing to disable on this machine)."""
     from numpy._core._multiarray_umath import __cpu_dispatch__, __cpu_features__
 
+    from pipeline.environment import fingerprint
+
     simd = " ".join(f for f in __cpu_dispatch__ if __cpu_features__.get(f))
     import platform
 
     older_core = {"x86_64": "Prescott", "AMD64": "Prescott", "aarch64": "ARMV8",
                   "arm64": "ARMV8"}.get(platform.machine())
+    if older_core and any(older_core.lower() in b.lower() for b in fingerprint()["blas"]):
+        older_core = None  # this machine's BLAS runs that core's kernels already
     paths = {"blas-1-thread": {"OPENBLAS_NUM_THREADS": "1"},
              "blas-2-threads": {"OPENBLAS_NUM_THREADS": "2"}}
     if simd:

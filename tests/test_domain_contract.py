@@ -159,15 +159,15 @@ def test_plans_keep_the_contract_on_other_cpu_code_paths(domain, planner):
     steps exact, scores and every path coordinate within the contract's tolerance
     (docs/reproducibility.md)."""
     domain_or_skip(domain, planner)
-    paths = {k: v for k, v in code_paths().items() if not k.startswith("blas-")}
-    if not paths:
+    forced = [(k, v) for k, v in code_paths().items() if not k.startswith("blas-")]
+    if not forced:
         pytest.skip("no other CPU code path can be forced on this machine")
+    name, env = forced[-1]  # all of them together where this machine can (test_replay: each)
     here = [summary(r) for r in planned(domain, planner)]
-    for name, env in paths.items():
-        for a, b in zip(here, in_child(domain, planner, env), strict=True):
-            assert list(a[:3]) == b[:3], name
-            assert agree(float(a[3]), float(b[3])), name
-            assert agree(*(np.frombuffer(bytes.fromhex(x[4])) for x in (a, b))), name
+    for a, b in zip(here, in_child(domain, planner, env), strict=True):
+        assert list(a[:3]) == b[:3], name
+        assert agree(float(a[3]), float(b[3])), name
+        assert agree(*(np.frombuffer(bytes.fromhex(x[4])) for x in (a, b))), name
 
 
 @pytest.mark.parametrize("domain,planner", PAIRS)
