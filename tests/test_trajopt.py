@@ -11,6 +11,7 @@ from pipeline.domains import load_domain
 from pipeline.planning import PlannerSettings, Status, interpolate, path_is_free
 from pipeline.planning.trajopt import TrajOpt, TrajOptOptions, optimise
 from pipeline.sim import panda as P
+from tests.replay import child_env
 
 START, GOAL = np.array([0.0, 0.0]), np.array([1.0, 0.0])
 #: TrajOpt with its wall-clock safety net out of reach: on a loaded machine a call must not
@@ -124,10 +125,10 @@ def test_enclosed_object_is_infeasible_for_every_grasp(domain):
 
 
 def test_domain_results_are_identical_in_another_process(domain):
-    """Statuses are exact; paths agree to 1e-6 rad.  Not bitwise: in a process that has
-    planned other things first (this module's earlier tests) TrajOpt's waypoints differed
-    from a fresh process's by about 1e-7 (seen in CI; pybullet's distance queries appear to
-    depend on the client's query history).  An open determinism issue, noted in the README."""
+    """Bitwise, in a fresh process with one BLAS thread (as a Dask worker) planning the
+    calls in the reverse order, after this module's earlier tests planned other things
+    here with one BLAS thread per core (docs/reproducibility.md: TrajOpt's plans once
+    differed by about 1e-7 between such processes)."""
     inst = domain.sample_instance(3)
     calls = [(j, domain.plan(inst, j, seed=j)) for j in range(0, 162, 9)]
     assert any(r.feasible for _, r in calls)
@@ -138,11 +139,12 @@ def test_domain_results_are_identical_in_another_process(domain):
         "d.plan(inst, j, seed=j).path.tolist()] for j in json.loads(sys.argv[2])]))")
     out = subprocess.run([sys.executable, "-c", code, json.dumps(inst),
                           json.dumps([j for j, _ in calls][::-1])],
-                         capture_output=True, text=True, check=True).stdout
+                         capture_output=True, text=True, check=True,
+                         env=child_env({"OPENBLAS_NUM_THREADS": "1"})).stdout
     other = json.loads(out.strip().splitlines()[-1])[::-1]
     for (_, r), (status, path) in zip(calls, other, strict=True):
         assert int(r.status) == status
-        assert np.allclose(r.path, np.array(path), rtol=0, atol=1e-6)
+        assert r.path.tolist() == path
 
 
 def test_planar_refuses_trajopt():
