@@ -22,7 +22,6 @@ app = typer.Typer(
     "`python -m pipeline` (status, show, export) and evaluate selectors on any score matrix "
     "(evaluate, demo).",
     no_args_is_help=True,
-    add_completion=False,
 )
 # Off a terminal (pipes, CI logs) rich assumes 80 columns and wraps the table badly.
 out = Console(width=None if sys.stdout.isatty() else 132)
@@ -30,6 +29,20 @@ err = Console(stderr=True)
 
 #: Exit code for bad input (missing file or array, wrong shapes, bad values).
 BAD_INPUT = 2
+
+
+def _version(value: bool) -> None:
+    if value:
+        from importlib.metadata import version
+
+        out.print(f"box-planning {version('box-planning')}", highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def _main(version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
+                                       help="Print the version and exit.")) -> None:
+    """Score-space constraint selection (BOX)."""
 
 
 def _fail(message: str) -> None:
@@ -42,8 +55,9 @@ def evaluate(
     file: Path = typer.Argument(..., help="Score matrix file (.npz, or .mat from MATLAB), or a "
                                 "score store (.zarr folder) made by the pipeline."),
     selectors: str = typer.Option(
-        "", help="Comma-separated selectors (box, static, rand, doo, pembo, oracle). "
-        "Default: box, static, rand, plus doo when the file has features."),
+        "", help=f"Comma-separated selectors, of: {', '.join(sorted(box_core.SELECTORS))} "
+        "(doo needs constraint features). Default: box, static, "
+        "rand, plus doo when the file has features."),
     k: int = typer.Option(None, "-k", help="Tries per held-out instance (default: all m)."),
     seed: int = typer.Option(0, help="Seed of the random selectors (fold i uses (seed, i))."),
     c: float = typer.Option(1.96, help="BOX's UCB coefficient."),

@@ -105,3 +105,21 @@ def test_demo_rerun_reuses_its_file_but_keeps_a_different_one(tmp_path):
 def test_demo_refuses_a_path_that_is_not_npz(tmp_path):
     res = runner.invoke(app, ["demo", "--n", "30", "--m", "10", "--path", str(tmp_path / "x")])
     assert res.exit_code == 2 and ".npz" in res.output
+
+
+def test_version_is_the_installed_distribution():
+    from importlib.metadata import version
+
+    res = CliRunner().invoke(app, ["--version"])
+    assert res.exit_code == 0 and res.output.strip() == f"box-planning {version('box-planning')}"
+
+
+def test_completion_is_offered_and_every_selector_is_listed_in_help():
+    import box_core
+
+    res = CliRunner().invoke(app, ["--help"], terminal_width=200)
+    assert "--install-completion" in res.output
+    res = CliRunner().invoke(app, ["evaluate", "--help"], terminal_width=400)
+    text = " ".join(res.output.split())
+    for name in box_core.SELECTORS:
+        assert name in text, name

@@ -69,3 +69,18 @@ def test_local_workers_follow_the_allocation(monkeypatch):
     assert available_cores() == 1
     monkeypatch.delenv("SLURM_CPUS_PER_TASK")
     assert available_cores() == unconstrained  # never more than the affinity mask allows
+
+
+def test_the_dashboard_link_printed_opens_dask_s_dashboard():
+    """The banner's link serves Dask's status page, not "Dask needs bokeh" (bokeh is a
+    dependency of this package, installed by the README's commands)."""
+    import re
+    import urllib.request
+
+    out = io.StringIO()
+    with connect(ClusterConfig(n_workers=1), Console(file=out, width=200)):
+        link = re.search(r"dashboard (http://\S+/status)", out.getvalue()).group(1)
+        with urllib.request.urlopen(link, timeout=30) as page:  # noqa: S310 (loopback)
+            status, html = page.status, page.read().decode()
+    assert status == 200
+    assert "bokeh" in html.lower() and "needs bokeh" not in html.lower()
