@@ -199,7 +199,7 @@ class _Setup:
     @classmethod
     def check(cls, scores, times, feasible, selectors, k, features, params, failure_rule,
               min_rows, forbidden=None):
-        D = validation.score_matrix(scores, min_rows=min_rows)
+        D = validation.score_matrix(scores, min_rows=min_rows, feasible=feasible)
         n, m = D.shape
         if times is None:
             T = np.ones((n, m))

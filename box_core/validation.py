@@ -10,8 +10,13 @@ from __future__ import annotations
 import numpy as np
 
 
-def score_matrix(scores, *, name: str = "scores", min_rows: int = 1) -> np.ndarray:
-    """Return ``scores`` as a finite float64 (n, m) array, or raise ValueError."""
+def score_matrix(scores, *, name: str = "scores", min_rows: int = 1,
+                 feasible=None) -> np.ndarray:
+    """Return ``scores`` as a finite float64 (n, m) array, or raise ValueError.
+
+    With a ``feasible`` mask, NaN is accepted where an entry is infeasible (a score store's
+    and ``box export``'s convention) and returned as 0: the caller replaces every
+    infeasible entry by the failure value anyway.  NaN in a feasible entry is refused."""
     try:
         arr = np.asarray(scores, dtype=np.float64)
     except (TypeError, ValueError) as exc:
@@ -23,7 +28,15 @@ def score_matrix(scores, *, name: str = "scores", min_rows: int = 1) -> np.ndarr
         raise ValueError(f"{name} has no columns (shape {arr.shape})")
     if n < min_rows:
         raise ValueError(f"{name} needs at least {min_rows} rows, got {n}")
-    _require_finite(arr, name)
+    if feasible is not None:
+        mask = boolean_matrix(feasible, arr.shape, name="feasible")
+        arr = np.where(np.isnan(arr) & ~mask, 0.0, arr)
+    try:
+        _require_finite(arr, name)
+    except ValueError as exc:
+        hint = ("a feasible entry cannot be NaN" if feasible is not None else
+                "NaN may mark infeasible entries only when a feasibility mask is given")
+        raise ValueError(f"{exc} ({hint})") from None
     return arr
 
 

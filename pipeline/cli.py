@@ -52,8 +52,9 @@ def _fail(message: str) -> None:
 
 @app.command()
 def evaluate(
-    file: Path = typer.Argument(..., help="Score matrix file (.npz, or .mat from MATLAB), or a "
-                                "score store (.zarr folder) made by the pipeline."),
+    file: Path = typer.Argument(..., help="Score matrix file (.npz, or .mat from MATLAB), a "
+                                "box export (.npz, .nc, .parquet), or a score store (.zarr "
+                                "folder) made by the pipeline."),
     selectors: str = typer.Option(
         "", help=f"Comma-separated selectors, of: {', '.join(sorted(box_core.SELECTORS))} "
         "(doo needs constraint features). Default: box, static, "
@@ -83,6 +84,10 @@ def evaluate(
     try:
         if file.is_dir():
             data, forbidden = _store_matrix(file)
+        elif file.suffix in (".nc", ".parquet") and file.is_file():
+            from pipeline.export import read_export
+
+            data, forbidden = read_export(file)
         else:
             data = load_matrix(file, scores=scores_var, times=times_var,
                                feasible=feasible_var, features=features_var)
@@ -135,11 +140,17 @@ def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, 
         _fail(f"{file}: not enough memory to evaluate a {shape} matrix")
     summary = result.summary()
     n, m = data.scores.shape
+    rule = ("given" if data.feasible is not None else
+            f"derived: entries scoring above the minimum ({float(np.min(data.scores)):.4g}) "
+            "are feasible (give a feasibility mask with --feasible-var to say otherwise)")
     if as_json:
-        doc = {"file": str(file), "n": n, "m": m, "failure_value": result.failure_value,
+        doc = {"file": str(file), "n": n, "m": m, "feasibility": rule,
+               "failure_value": result.failure_value,
                "rows_with_feasible": int(result.eligible.sum()), **summary.to_dict()}
         typer.echo(json.dumps(doc, indent=2))
         return
+    if data.feasible is None:
+        err.print(f"feasibility {rule}", highlight=False, soft_wrap=True)
     print_summary(summary, title=f"{file}  ({n} x {m}, failure value {result.failure_value:.4g})")
 
 
@@ -302,18 +313,22 @@ def check_png_target(target: Path, overwrite: bool) -> None:
 @app.command()
 def export(
     store: str = typer.Argument(..., help=STORE_URL_HELP),
-    fmt: str = typer.Option("npz", "--format", "-f", help="npz (one NumPy archive that box "
-                            "evaluate reads) or csv (a folder of CSV files plus metadata.json)."),
+    fmt: str = typer.Option("npz", "--format", "-f", help="npz (a NumPy archive), netcdf (an "
+                            "xarray Dataset, .nc), parquet (one row per entry) or csv (a folder "
+                            "of CSV files plus metadata.json); box evaluate reads the first "
+                            "three."),
     out_path: Path = typer.Option(None, "--out", "-o", help="Where to write (default: in "
                                   "the current folder, named after the store). Never inside "
                                   "a store."),
     overwrite: bool = typer.Option(False, help="Replace an existing file, or a folder that "
                                    "holds a previous csv export."),
 ):
-    """Export STORE's score matrix and metadata (npz or csv) for other tools.
+    """Export STORE's score matrix and metadata (npz, netcdf, parquet or csv) for other tools.
 
-    Writes scores, times, feasibility, path lengths, statuses, constraint features and the
-    store's config. An unfinished store is exported with a `done` mask and a warning.
+    Writes scores (NaN where infeasible; the failure value box evaluate uses is in the
+    metadata), times, feasibility, path lengths, statuses and failed steps, constraint
+    features and the store's config. An unfinished store is exported with a `done` mask
+    and a warning.
     """
     from pipeline.export import export as write
 

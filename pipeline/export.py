@@ -1,4 +1,21 @@
-"""``box export``: a store's score matrix and metadata in formats other tools read."""
+"""``box export``: a store's score matrix and metadata in formats other tools read.
+
+Every format keeps the store's meaning: a score is -(path length) where the entry is
+feasible and NaN elsewhere (never 0, the best score there is), the failure value that
+``box evaluate`` puts in their place is stated in the metadata, statuses and failed steps
+are given by name in the tabular formats, and ``box evaluate`` reads each export back
+(:func:`read_export`) to the same result as the store.
+
+* ``npz``: one array per quantity (what ``box evaluate`` has always read), ``metadata``
+  as JSON text;
+* ``netcdf``: an xarray Dataset (dimensions instance, constraint, feature), metadata in its
+  attributes;
+* ``parquet``: one row per entry (instance, constraint, instance_seed, done, feasible,
+  score, length, time, status, checks, step, forbidden), metadata (with the constraint
+  features) in the file's key-value metadata under ``box-planning``;
+* ``csv``: a folder with the same entry table, the constraints, the instances and
+  ``metadata.json``.
+"""
 
 from __future__ import annotations
 
@@ -10,11 +27,15 @@ from pathlib import Path
 
 import numpy as np
 
+from box_core.failure import failure_value
 from pipeline.evaluation import own_constraints
-from pipeline.store import ScoreStore, StoreError, path_scores, result_key
+from pipeline.store import ScoreStore, StoreError, result_key
 
-FORMATS = ("npz", "csv")
+#: format -> the suffix of its file ("" for a folder)
+FORMATS = {"npz": ".npz", "netcdf": ".nc", "parquet": ".parquet", "csv": ""}
 STEP = result_key("scores", "step")
+#: the key of the metadata in a Parquet file's key-value metadata
+PARQUET_KEY = b"box-planning"
 
 
 def _arrays(store: ScoreStore) -> dict[str, np.ndarray]:
@@ -27,7 +48,7 @@ def _arrays(store: ScoreStore) -> dict[str, np.ndarray]:
     feasible = scores("feasible") & done
     length = scores("length")
     arrays = {
-        "scores": path_scores(feasible, length),  # what ``box evaluate`` reads
+        "scores": np.where(feasible, -length, np.nan),  # what ``box evaluate`` reads
         "feasible": feasible,
         "times": scores("time"),
         "features": store.theta(),
@@ -49,6 +70,9 @@ def metadata(store: ScoreStore, arrays: dict) -> dict:
     attrs = store.attrs
     from pipeline.planning import Status
 
+    feasible = arrays["feasible"]
+    failure = (failure_value(np.nan_to_num(arrays["scores"]), feasible) if feasible.any()
+               else None)
     return {"store": str(store.path), "config_hash": attrs.get("config_hash"),
             "config": attrs.get("config"), "versions": attrs.get("versions"),
             "git_revision": attrs.get("git_revision"), "created": attrs.get("created"),
@@ -56,7 +80,10 @@ def metadata(store: ScoreStore, arrays: dict) -> dict:
             "status_codes": {s.name: int(s) for s in Status},
             "steps": (store.array(STEP).attrs.get("flag_meanings", "").split()
                       if store.has(STEP) else []),
-            "score": "-(path length) where feasible; 0 where infeasible or not computed",
+            "score": "-(path length) where feasible; NaN where infeasible or not computed",
+            "failure_value": failure, "failure_rule": "magnitude",
+            "failure": "box evaluate scores infeasible entries with failure_value = "
+                       "min(feasible scores) - |mean(feasible scores)| (rule 'magnitude')",
             "times": "seconds per planning call; NaN where not computed",
             "forbidden": "where present: entry (i, j) is a constraint extracted from row i's own "
                          "raw solution, hidden from row i in leave-one-out"}
@@ -75,20 +102,20 @@ def export(path, fmt: str, out: Path | None = None, overwrite: bool = False) -> 
     failed export leaves no partial file and an overwritten one stays whole until then.
     """
     if fmt not in FORMATS:
-        raise ValueError(f"unknown format {fmt!r}; choose {' or '.join(FORMATS)}")
+        raise ValueError(f"unknown format {fmt!r}; choose {', '.join(FORMATS)}")
     from pipeline.status import refuse_damaged
 
     store = ScoreStore.open(path)
     refuse_damaged(store)
     stem = store.path.name.removesuffix(".zarr")
-    default = f"{stem}.npz" if fmt == "npz" else f"{stem}-csv"
-    out = Path(out).expanduser() if out else Path.cwd() / default
-    if fmt == "npz" and out.suffix != ".npz":
-        raise ValueError(f"{out}: an npz export needs a path ending in .npz")
+    suffix = FORMATS[fmt]
+    out = Path(out).expanduser() if out else Path.cwd() / f"{stem}{suffix or '-csv'}"
+    if suffix and out.suffix != suffix:
+        raise ValueError(f"{out}: a {fmt} export needs a path ending in {suffix}")
     check_target(out, fmt, overwrite)
     arrays = _arrays(store)
     meta = metadata(store, arrays)
-    writer = _write_npz if fmt == "npz" else _write_csv
+    writer = WRITERS[fmt]
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = out.parent / f".{out.name}.partial-{os.getpid()}"
@@ -114,7 +141,7 @@ def check_target(out: Path, fmt: str, overwrite: bool) -> None:
         return
     if not overwrite:
         raise ValueError(f"-o {out} exists; pass --overwrite to replace it")
-    if fmt == "npz" and not out.is_file():
+    if fmt != "csv" and not out.is_file():
         raise ValueError(f"-o {out} exists and is not a file; --overwrite replaces files only")
     if fmt == "csv":
         if not out.is_dir() or out.is_symlink():
@@ -152,21 +179,40 @@ def _write_npz(tmp: Path, store, arrays, meta) -> None:
         np.savez_compressed(f, **arrays, metadata=np.array(json.dumps(meta)))
 
 
+def _status_names(codes) -> np.ndarray:
+    from pipeline.planning import Status
+
+    names = {int(st): st.name.lower() for st in Status}
+    return np.array([names.get(int(c), "not_computed") for c in np.ravel(codes)], dtype=object)
+
+
+def entry_table(store, arrays, meta):
+    """One row per entry, statuses and steps by name (pandas DataFrame)."""
+    import pandas as pd
+
+    n, m = arrays["scores"].shape
+    steps = meta["steps"]
+    step = np.ravel(arrays["step"])
+    table = pd.DataFrame({
+        "instance": np.repeat(np.arange(n), m), "constraint": np.tile(np.arange(m), n),
+        "instance_seed": np.repeat(arrays["instance_seed"], m),
+        "done": np.ravel(arrays["done"]), "feasible": np.ravel(arrays["feasible"]),
+        "score": np.ravel(arrays["scores"]), "length": np.ravel(arrays["length"]),
+        "time": np.ravel(arrays["times"]), "status": _status_names(arrays["status"]),
+        "checks": np.ravel(arrays["checks"]),
+        "step": np.array([steps[k] if 0 <= k < len(steps) else "" for k in step],
+                         dtype=object)})
+    if "forbidden" in arrays:
+        table["forbidden"] = np.ravel(arrays["forbidden"])
+    return table
+
+
 def _write_csv(out: Path, store, arrays, meta) -> None:
     out.mkdir()
-    n, m = arrays["scores"].shape
-    with open(out / "entries.csv", "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["instance", "constraint", "done", "feasible", "length", "time", "status",
-                    "checks", "step"])
-        steps = meta["steps"]
-        for i in range(n):
-            for j in range(m):
-                k = int(arrays["step"][i, j])
-                w.writerow([i, j, int(arrays["done"][i, j]), int(arrays["feasible"][i, j]),
-                            _cell(arrays["length"][i, j]), _cell(arrays["times"][i, j]),
-                            int(arrays["status"][i, j]), int(arrays["checks"][i, j]),
-                            steps[k] if 0 <= k < len(steps) else ""])
+    table = entry_table(store, arrays, meta)
+    flags = table.select_dtypes(bool).columns
+    table[flags] = table[flags].astype(int)  # 0/1, as spreadsheets and R read them
+    table.to_csv(out / "entries.csv", index=False)
     with open(out / "constraints.csv", "w", newline="") as f:
         w = csv.writer(f)
         theta = arrays["features"]
@@ -180,6 +226,85 @@ def _write_csv(out: Path, store, arrays, meta) -> None:
         for i, (seed, spec) in enumerate(zip(arrays["instance_seed"], specs, strict=True)):
             w.writerow([i, int(seed), str(spec)])
     (out / "metadata.json").write_text(json.dumps(meta, indent=1))
+
+
+def _write_parquet(out: Path, store, arrays, meta) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.Table.from_pandas(entry_table(store, arrays, meta), preserve_index=False)
+    doc = {**meta, "features": arrays["features"].tolist()}
+    table = table.replace_schema_metadata({**(table.schema.metadata or {}),
+                                          PARQUET_KEY: json.dumps(doc).encode()})
+    pq.write_table(table, out)
+
+
+def _write_netcdf(out: Path, store, arrays, meta) -> None:
+    import xarray as xr
+
+    entry = ("instance", "constraint")
+    data = {name: (entry, arrays[key]) for name, key in (
+        ("scores", "scores"), ("feasible", "feasible"), ("times", "times"),
+        ("length", "length"), ("status", "status"), ("checks", "checks"), ("step", "step"),
+        ("done", "done"), ("forbidden", "forbidden")) if key in arrays}
+    data["features"] = (("constraint", "feature"), arrays["features"])
+    ds = xr.Dataset(data, coords={"instance_seed": ("instance", arrays["instance_seed"])})
+    ds["scores"].attrs.update(units="rad", long_name="-(joint-space path length); NaN where "
+                              "infeasible")
+    ds["times"].attrs.update(units="s", long_name="planning time per call")
+    from pipeline.planning import Status
+    from pipeline.store import flag_attrs
+
+    ds["status"].attrs.update(flag_attrs([int(st) for st in Status], Status.names(),
+                                         not_computed=-1))
+    ds["step"].attrs.update(flag_attrs(list(range(len(meta["steps"]))), meta["steps"], none=-1))
+    ds.attrs.update(metadata=json.dumps(meta), failure_rule=meta["failure_rule"],
+                    **({"failure_value": meta["failure_value"]}
+                       if meta["failure_value"] is not None else {}))
+    ds.to_netcdf(out, engine="h5netcdf")
+
+
+WRITERS = {"npz": _write_npz, "csv": _write_csv, "parquet": _write_parquet,
+           "netcdf": _write_netcdf}
+
+
+def read_export(path: Path):
+    """A NetCDF or Parquet export as ``box evaluate`` takes it: (MatrixFile, forbidden)."""
+    from box_core.io import MatrixFile
+
+    try:
+        if path.suffix == ".nc":
+            import xarray as xr
+
+            with xr.open_dataset(path, engine="h5netcdf") as ds:
+                get = {k: ds[k].values for k in ds.data_vars}
+        else:
+            import pyarrow.parquet as pq
+
+            table = pq.read_table(path)
+            doc = json.loads((table.schema.metadata or {})[PARQUET_KEY])
+            frame = table.to_pandas()
+            n, m = int(frame["instance"].max()) + 1, int(frame["constraint"].max()) + 1
+            grid = (frame["instance"].to_numpy(), frame["constraint"].to_numpy())
+
+            def matrix(column, fill, dtype):
+                out = np.full((n, m), fill, dtype=dtype)
+                out[grid] = frame[column].to_numpy(dtype=dtype)
+                return out
+
+            get = {"scores": matrix("score", np.nan, float),
+                   "feasible": matrix("feasible", False, bool),
+                   "times": matrix("time", np.nan, float),
+                   "features": np.asarray(doc["features"], dtype=float)}
+            if "forbidden" in frame:
+                get["forbidden"] = matrix("forbidden", False, bool)
+    except Exception as exc:  # noqa: BLE001 (any unreadable file: one line)
+        raise ValueError(f"{path}: cannot read as a box export ({exc})") from None
+    if "scores" not in get:
+        raise ValueError(f"{path}: no scores in this file; is it a box export?")
+    data = MatrixFile(scores=get["scores"], times=get.get("times"),
+                      feasible=get.get("feasible"), features=get.get("features"))
+    return data, get.get("forbidden")
 
 
 def _replace(tmp: Path, out: Path) -> None:
@@ -198,7 +323,3 @@ def _remove(path: Path) -> None:
         shutil.rmtree(path, ignore_errors=True)
     elif path.exists() or path.is_symlink():
         path.unlink()
-
-
-def _cell(x) -> str:
-    return "" if np.isnan(x) else repr(float(x))

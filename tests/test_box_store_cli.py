@@ -5,6 +5,7 @@ import json
 import shutil
 
 import numpy as np
+import pytest
 import zarr
 from typer.testing import CliRunner
 
@@ -74,7 +75,12 @@ def test_export_csv_holds_one_row_per_entry(made, tmp_path):
         rows = list(csv.DictReader(f))
     assert len(rows) == 24 * 15
     status = zarr.open_array(store / "scores" / "status", mode="r")[...]
-    assert [int(r["status"]) for r in rows] == status.reshape(-1).tolist()
+    from pipeline.planning import Status
+
+    assert [r["status"] for r in rows] == [Status(c).name.lower() for c in status.reshape(-1)]
+    score = zarr.open_array(store / "scores" / "score", mode="r")[...].reshape(-1)
+    assert [float(r["score"]) if r["score"] else None for r in rows] == [
+        None if np.isnan(x) else float(x) for x in score]
     meta = json.loads((tmp_path / "c" / "metadata.json").read_text())
     assert meta["config"]["domain"]["name"] == "planar"
     assert meta["steps"] == ["via_leg", "goal_leg"]
@@ -89,3 +95,63 @@ def test_export_refuses_bad_formats_and_foreign_paths(made, tmp_path):
     (tmp_path / "mine").mkdir()
     res = runner.invoke(app, ["export", str(tmp_path / "mine")])
     assert res.exit_code == 2
+
+
+@pytest.mark.parametrize("fmt, suffix", [("npz", ".npz"), ("netcdf", ".nc"),
+                                         ("parquet", ".parquet")])
+def test_every_export_keeps_nan_scores_and_evaluates_like_its_store(made, tmp_path, fmt,
+                                                                   suffix):
+    """Infeasible entries are NaN (never 0, the best score), the failure value that box
+    evaluate puts in their place is in the file, and box evaluate reads the export back
+    to the store's own result."""
+    store, _ = made
+    out = tmp_path / f"d{suffix}"
+    res = runner.invoke(app, ["export", str(store), "-f", fmt, "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    a = runner.invoke(app, ["evaluate", str(out), "--json", "--no-overhead"])
+    b = runner.invoke(app, ["evaluate", str(store), "--json", "--no-overhead"])
+    assert a.exit_code == b.exit_code == 0, a.output
+    da, db = json.loads(a.output), json.loads(b.output)
+    assert da["failure_value"] == db["failure_value"] and da["feasibility"] == "given"
+    assert [s["mean_time"] for s in da["selectors"]] == [s["mean_time"] for s in db["selectors"]]
+    feasible = zarr.open_array(store / "scores" / "feasible", mode="r")[...]
+    if fmt == "npz":
+        with np.load(out) as data:
+            scores, meta = data["scores"], json.loads(str(data["metadata"]))
+    elif fmt == "netcdf":
+        import xarray as xr
+
+        with xr.open_dataset(out) as ds:
+            scores, meta = ds["scores"].values, json.loads(ds.attrs["metadata"])
+            assert ds["times"].attrs["units"] == "s"
+            assert ds.attrs["failure_value"] == db["failure_value"]
+    else:
+        import pandas as pd
+        import pyarrow.parquet as pq
+
+        frame = pd.read_parquet(out)
+        scores = frame["score"].to_numpy().reshape(feasible.shape)
+        meta = json.loads(pq.read_schema(out).metadata[b"box-planning"])
+        assert set(frame["status"]) <= {"ok", "no_ik", "goal_in_collision",
+                                        "budget_exhausted", "start_in_collision"}
+    assert np.isnan(scores[~feasible]).all() and (scores[feasible] < 0).all()
+    assert meta["failure_value"] == db["failure_value"]
+
+
+def test_evaluate_takes_nan_scores_with_a_mask_and_says_how_it_derives_feasibility(tmp_path):
+    rng = np.random.default_rng(0)
+    feasible = rng.random((12, 6)) < 0.5
+    feasible[:, 0] = True
+    scores = np.where(feasible, -rng.random((12, 6)) - 1, np.nan)
+    with_mask, without = tmp_path / "m.npz", tmp_path / "n.npz"
+    np.savez(with_mask, scores=scores, feasible=feasible)
+    np.savez(without, scores=scores)
+    res = runner.invoke(app, ["evaluate", str(with_mask), "--json", "--no-overhead"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.output)["feasibility"] == "given"
+    res = runner.invoke(app, ["evaluate", str(without)])
+    assert res.exit_code == 2 and "NaN may mark infeasible entries only" in res.output
+    np.savez(without, scores=np.where(feasible, scores, -5.0))
+    res = runner.invoke(app, ["evaluate", str(without), "--json", "--no-overhead"])
+    assert res.exit_code == 0
+    assert json.loads(res.stdout)["feasibility"].startswith("derived: entries scoring above")
