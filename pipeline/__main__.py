@@ -34,17 +34,23 @@ def main(cfg) -> None:
         validate(cfg)  # every key, whatever the stage, before anything is opened or written
         run_pipeline(cfg, console)
     except (StoreError, ValueError) as exc:
-        err.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
-        sys.exit(BAD_INPUT)
+        _end(err, "error", exc, BAD_INPUT)
     except StoreDamaged as exc:
-        err.print(f"[bold red]damaged:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
-        sys.exit(FAILED)
+        _end(err, "damaged", exc, FAILED)
     except TaskFailed as exc:
-        err.print(f"[bold red]failed:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
-        sys.exit(FAILED)
+        _end(err, "failed", exc, FAILED)
     except KeyboardInterrupt:
         err.print("interrupted: finished blocks are saved; re-run the same command to resume")
         sys.exit(INTERRUPTED)
+
+
+def _end(err: Console, kind: str, exc: Exception, code: int) -> None:
+    """One line on stderr and in the run's log, then exit with ``code``."""
+    import logging
+
+    err.print(f"[bold red]{kind}:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
+    logging.getLogger("pipeline").error("%s: %s", kind, exc)
+    sys.exit(code)
 
 
 def config_error(args: list[str]) -> str | None:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import uuid
 from collections import Counter
 from pathlib import Path
@@ -23,6 +24,7 @@ from pathlib import Path
 import numpy as np
 from omegaconf import OmegaConf
 from rich.console import Console
+from rich.text import Text
 
 from box_core import SELECTOR_REVISION
 from pipeline import configs, environment, validation, worker
@@ -60,6 +62,7 @@ from pipeline.store import (
 )
 
 GENERATE = ("instances", "raw", "constraints", "scores")
+log = logging.getLogger("pipeline")
 
 #: What each stage is computed from (its digests are recorded with the stage).
 INPUTS = {
@@ -172,8 +175,10 @@ class Run:
                             console=self.console, client=lambda: self.client)
 
     def say(self, text: str) -> None:
-        """One line, never wrapped (logs and terminals alike)."""
+        """One line, never wrapped, on the console and in the run's log (Hydra's
+        ``outputs/<date>/<time>/__main__.log``)."""
         self.console.print(text, highlight=False, soft_wrap=True)
+        log.info(Text.from_markup(text).plain)
 
     def require(self, stage: str, needed_by: str) -> None:
         if self.store is None or self.store.stage_info(stage) is None:
