@@ -21,7 +21,7 @@ register_configs()
 BAD_INPUT, FAILED, INTERRUPTED = 2, 1, 130
 
 
-@hydra.main(config_path="../conf", config_name="config", version_base="1.3")
+@hydra.main(config_path=str(CONF_DIR), config_name="config", version_base="1.3")
 def main(cfg) -> None:
     from pipeline.execution import TaskFailed
     from pipeline.stages import run_pipeline
@@ -99,10 +99,16 @@ def _one_line(exc: Exception) -> str:
     return head
 
 
-if __name__ == "__main__":
+def run() -> None:
+    """The ``box-pipeline`` console script and ``python -m pipeline``: the config checked in
+    one line before Hydra starts (a refused command writes nothing), then the run."""
     problem = config_error(sys.argv[1:])
     if problem:
         Console(stderr=True).print(f"[bold red]error:[/] {escape(problem)}", highlight=False,
                                    soft_wrap=True)
         sys.exit(BAD_INPUT)
     main()
+
+
+if __name__ == "__main__":
+    run()

@@ -169,6 +169,36 @@ def register_configs() -> None:
     cs.store(group="cluster", name="cluster_schema", node=ClusterConfig)
     for name, schema in DOMAIN_SCHEMAS.items():
         cs.store(group="domain", name=f"{name}_schema", node=schema)
+    cs.store(group="hydra/help", name="pipeline_help", node=help_config(), provider="pipeline")
+
+
+#: The command's name in its help (the console script; ``python -m pipeline`` is the same).
+APP_NAME = "box-pipeline"
+
+
+def choices(group: str) -> list[str]:
+    """The options of a config group: its YAML files in ``conf/`` (schemas are not
+    options)."""
+    return sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
+
+
+def help_config() -> dict:
+    """``--help``: the command's own name and the real choices of each group (Hydra's
+    default lists the schemas too)."""
+    groups = "\n".join(f"  {g}: {', '.join(choices(g))}" for g in ("domain", "planner",
+                                                                      "cluster"))
+    return {
+        "app_name": APP_NAME,
+        "header": f"{APP_NAME} (python -m pipeline): score matrices of planning problems, "
+                  "the leave-one-out comparison of constraint selectors (BOX), reports and "
+                  "live solving.\nUsage: " + APP_NAME + " stage=NAME key=value ... "
+                  "(stages: " + ", ".join(s.value for s in Stage) + "; -m for sweeps)",
+        "footer": "README.md and docs/ explain every key; --cfg job prints the composed "
+                  "config, --hydra-help Hydra's own flags.",
+        "template": "${hydra.help.header}\n\n== Configuration groups (group=option) ==\n"
+                    + groups + "\n\n== Config ==\nOverride anything below "
+                    "(key=value):\n\n$CONFIG\n${hydra.help.footer}\n",
+    }
 
 
 #: The keys that determine a store's contents (a store refuses to continue under others).

@@ -123,3 +123,20 @@ def test_completion_is_offered_and_every_selector_is_listed_in_help():
     text = " ".join(res.output.split())
     for name in box_core.SELECTORS:
         assert name in text, name
+
+
+@pytest.mark.parametrize("command", [["-m", "pipeline"], ["box-pipeline"]])
+def test_pipeline_help_names_the_command_and_lists_only_real_choices(command):
+    """``python -m pipeline --help`` and the ``box-pipeline`` console script: the command's
+    name (not "__main__ is powered by Hydra"), and each group's options (no schemas)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    args = ([sys.executable, *command] if command[0] == "-m"
+            else [str(Path(sys.executable).parent / command[0])])
+    res = subprocess.run([*args, "--help"], capture_output=True, text=True, check=True)
+    assert res.stdout.startswith("box-pipeline (python -m pipeline)")
+    assert "domain: grasp_arm, grasp_base, pick_place, planar" in res.stdout
+    assert "planner: noop, rrt_connect, trajopt" in res.stdout
+    assert "_schema" not in res.stdout and "powered by Hydra" not in res.stdout
