@@ -31,7 +31,7 @@ class Provenance:
         self.unknown = used.pop(UNKNOWN_ENVIRONMENT, 0)
         table = store.environments()
         #: environments of this group's blocks (finished ones, then this run's)
-        self.records = [table[i] for i in sorted(used)]
+        self.records = [table[i] for i in sorted(used) if 0 <= i < len(table)]
         self.entries = sum(used.values())
         self.announced: list[dict] = []
 
