@@ -77,6 +77,7 @@ class JobKeeper:
         self.interval, self.last = interval, -float("inf")
         self.replaced = 0
         self.warned = False
+        self.seen: dict[str, str] = {}  # worker name -> SLURM job id, of every job seen
 
     def _listed(self) -> set[str] | None:
         try:
@@ -87,12 +88,17 @@ class JobKeeper:
             return None  # squeue unavailable for now: try again at the next check
         return set(out.split())
 
-    def replace_lost(self) -> None:
-        if time.monotonic() - self.last < self.interval:
+    def replace_lost(self, force: bool = False) -> None:
+        """Replace the jobs SLURM no longer lists.  ``force``: ask SLURM now (a worker has
+        just left), not only once per ``interval``.  Jobs are remembered from the first time
+        they are seen, because the cluster forgets a job whose worker left some seconds
+        later, and the loss must still be found then."""
+        self.seen.update({name: job.job_id for name, job in list(self.cluster.workers.items())
+                          if getattr(job, "job_id", None)})
+        if not force and time.monotonic() - self.last < self.interval:
             return
         self.last = time.monotonic()
-        submitted = {name: job.job_id for name, job in list(self.cluster.workers.items())
-                     if getattr(job, "job_id", None)}
+        submitted = dict(self.seen)
         if not submitted:
             return
         listed = self._listed()
@@ -108,6 +114,7 @@ class JobKeeper:
                     self.warned = True
                 break
             self.cluster.worker_spec.pop(name, None)
+            self.seen.pop(name, None)
             self.replaced += 1
             replaced += 1
             self.say(f"[yellow]SLURM job {submitted[name]} ended early; submitting a "

@@ -35,6 +35,7 @@ class Watchdog:
         workers = set(self.client.nthreads())
         if workers - self.known:
             check_workers(self.client, workers - self.known, self.digest, self.say)
+        left = bool(self.known - workers)
         self.known = workers
         if workers:
             self.empty_since = None
@@ -44,7 +45,7 @@ class Watchdog:
             raise ClusterFailed(f"no Dask worker connected for {self.timeout:g} s "
                                 f"(cluster.worker_timeout){self.hint}")
         if self.keeper is not None:
-            self.keeper.replace_lost()
+            self.keeper.replace_lost(force=left)  # a worker left: was its job lost?
         return len(workers)
 
     def wait_for_first(self) -> int:
