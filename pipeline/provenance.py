@@ -42,7 +42,7 @@ class Provenance:
         if self.records and new:
             self._differs(new[0], f"resuming in another environment than the one that "
                                   f"computed its {self.entries} finished entries")
-            self.announced += new
+            self.announced += new  # said once for all the workers at hand
         elif self.unknown:
             self.say(f"[yellow]{self.group}: {self.unknown} finished entries were computed "
                      "before environments were recorded (layout < 3); new blocks may differ "
@@ -54,6 +54,7 @@ class Provenance:
             if self.records and record not in self.announced:
                 self._differs(record, "a block was computed in another environment than "
                                       "this store's other blocks")
+                self.announced.append(record)
             self.records.append(record)
         return self.store.environment_index(record)
 
@@ -64,4 +65,3 @@ class Provenance:
                              "a store to one environment: run it where it was made, or with "
                              "store.environment=allow")
         self.say(f"[yellow]{self.group}: {what} ({change}); {WHY}")
-        self.announced.append(record)

@@ -364,17 +364,12 @@ class ScoreStore:
         self.root.attrs[ENVIRONMENTS] = [*table, record]
         return len(table)
 
-    def environments_used(self, group: str, blocks=None) -> dict[int, int]:
-        """Entries of ``group`` per environment index (-1: not recorded), over its finished
-        ``blocks`` (default: every entry whose block is done); {} before layout 3."""
+    def environments_used(self, group: str) -> dict[int, int]:
+        """Entries of ``group`` whose block is done, per environment index (-1: not
+        recorded); {} before layout 3."""
         if not self.has(result_key(group, ENVIRONMENT)):
             return {}
-        arr = self.array(result_key(group, ENVIRONMENT))
-        if blocks is None:
-            values = arr[...][self.done(group)]
-        else:
-            parts = [arr[block_region(b, arr.chunks)].reshape(-1) for b in blocks]
-            values = np.concatenate(parts) if parts else np.zeros(0, dtype="int16")
+        values = self.array(result_key(group, ENVIRONMENT))[...][self.done(group)]
         found, counts = np.unique(values, return_counts=True)
         return {int(k): int(c) for k, c in zip(found, counts, strict=True)}
 
