@@ -109,6 +109,11 @@ class ClusterConfig:
     slurm: SlurmConfig = field(default_factory=SlurmConfig)
 
 
+#: The selector measured in stage ``raw`` rather than by leave-one-out: the domain's own
+#: search over constraints (a name that evaluate.selectors and solve.selectors accept).
+RAWPLANNER = "rawplanner"
+
+
 @dataclass
 class EvaluateConfig:
     selectors: list[str] = field(
@@ -156,7 +161,8 @@ class Config:
     evaluate: EvaluateConfig = field(default_factory=EvaluateConfig)
     report: ReportConfig = field(default_factory=ReportConfig)
     solve: SolveConfig = field(default_factory=SolveConfig)
-    progress: bool = True  # the progress bar (off for logs and tests)
+    progress: bool = True  # entries done: a bar on a terminal, else lines (off for tests)
+    progress_every: float = 60.0  # seconds between progress lines off a terminal and in the log
 
 
 def register_configs() -> None:

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 
 import box_core
+from pipeline import evaluation_store
+from pipeline.configs import RAWPLANNER
 from pipeline.context import StageContext
+from pipeline.evaluation_store import StoredEvaluation, raw_curve
 from pipeline.store import SOURCE_INSTANCE, result_key
 from pipeline.tables import summary_table
-
-#: Measured outside the LOOCV: RAWPLANNER's time comes from stage ``raw``.
-RAWPLANNER = "rawplanner"
 
 
 def own_constraints(store) -> np.ndarray | None:
@@ -58,15 +58,22 @@ def evaluate(ctx: StageContext) -> None:
                                 failure_rule=settings["failure_rule"], forbidden=hide)
     except ValueError as exc:
         raise ValueError(f"evaluate: {exc}") from None
-    others = {}
+    others, curves = {}, {}
     if with_raw:
-        raw_ok = store.array(result_key("raw", "feasible"))[...]
-        others[RAWPLANNER] = np.where(raw_ok, store.array(result_key("raw", "time"))[...],
-                                     np.nan)
+        raw_ok, raw_time, raw_length = (store.array(result_key("raw", name))[...]
+                                        for name in ("feasible", "time", "length"))
+        others[RAWPLANNER] = np.where(raw_ok, raw_time, np.nan)
+        curves[RAWPLANNER] = raw_curve(raw_ok, raw_time, raw_length, result.time_grid,
+                                       result.failure_value)
     summary = result.summary(others=others)
     store.forget_stage("evaluate")  # derived data: replaced as a whole
-    store.remove("evaluation")  # any kind of store: local, file:// or s3://
-    _write(store, result, others)
+    evaluation_store.write(store, StoredEvaluation(
+        selectors=[*result.selectors, *others], time_grid=result.time_grid,
+        eligible=result.eligible, optimal_score=result.optimal_score,
+        first_feasible_time={**result.first_feasible_time, **others},
+        best_score={**result.best_score, **curves},
+        first_feasible_step=result.first_feasible_step, order=result.order),
+        score_units=store.array(result_key("scores", "score")).attrs.get("units", "1"))
     # what the report states about leakage: how many rows had constraints of their own,
     # and whether those were hidden from them
     leakage = {"own_constraint_rows": 0 if own is None else int(own.any(axis=1).sum()),
@@ -76,31 +83,6 @@ def evaluate(ctx: StageContext) -> None:
                         selector_revision=box_core.SELECTOR_REVISION)
     n, m = scores.shape
     ctx.console.print(summary_table(summary, title=f"{ctx.path.name}  ({n} x {m})"))
-
-
-def _write(store, result, others) -> None:
-    inst, step, time = "instance", "step", "time"
-    n, k = result.order[result.selectors[0]].shape
-    b = max(1, min(n, 1000))
-    store.create("evaluation/time_grid", result.time_grid.shape, result.time_grid.shape,
-                 "float64", np.nan, (time,))[...] = result.time_grid
-    store.create("evaluation/eligible", (n,), (b,), "bool", False, (inst,))[...] = result.eligible
-    store.create("evaluation/optimal_score", (n,), (b,), "float64", np.nan,
-                 (inst,))[...] = result.optimal_score
-    for name in result.selectors:
-        g = f"evaluation/{name}"
-        store.create(f"{g}/order", (n, k), (b, k), "int32", -1, (inst, step))[...] = \
-            result.order[name]
-        store.create(f"{g}/first_feasible_step", (n,), (b,), "int32", -1,
-                     (inst,))[...] = result.first_feasible_step[name]
-        store.create(f"{g}/first_feasible_time", (n,), (b,), "float64", np.nan,
-                     (inst,))[...] = result.first_feasible_time[name]
-        curve = result.best_score[name]
-        store.create(f"{g}/best_score", curve.shape, (b, curve.shape[1]), "float64", np.nan,
-                     (inst, time))[...] = curve
-    for name, values in others.items():
-        store.create(f"evaluation/{name}/first_feasible_time", (n,), (b,), "float64", np.nan,
-                     (inst,))[...] = values
 
 
 def print_stored_summary(ctx: StageContext) -> None:

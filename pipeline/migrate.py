@@ -9,6 +9,14 @@ xarray shows are added.
 Layout 2 → 3: ``raw`` and ``scores`` get their ``environment`` array, -1 ("not recorded")
 for every entry, and their integrity tables a column for it; the recorded digests of every
 other array are kept as they are (nothing is re-read, so nothing unverified is adopted).
+
+Layout 3 → 4: every group gets the index coordinates it lacks (``instance``,
+``constraint``) and ``feature_units``, and the integrity tables a column for each; the
+``feature`` coordinate takes the domain's feature names (its column recomputed); CF
+attributes are set on every array; an evaluation stored one group per selector becomes one
+dataset along ``selector`` when its recorded digests still hold (else it is dropped and
+computed again).  No entry of D is rewritten.
+
 Each step can be interrupted and run again.
 """
 
@@ -16,17 +24,21 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import integrity
+from pipeline import evaluation_store, integrity
 from pipeline.integrity import digest
 from pipeline.store import (
     ENVIRONMENT,
+    INSTANCE_SEED,
+    INSTANCE_SPEC,
     RAW_CONSTRAINT,
     THETA,
     ScoreStore,
     block_region,
     feature_coord,
-    feature_names,
+    index_coord,
     instance_coord,
+    result_attrs,
+    result_key,
     source_coord,
 )
 
@@ -39,6 +51,8 @@ def migrate(store: ScoreStore, domain) -> list[str]:
         notes += [f"layout 2: {note}" for note in to_layout_2(store, domain)]
     if store.layout_version < 3:
         notes += [f"layout 3: {note}" for note in to_layout_3(store)]
+    if store.layout_version < 4:
+        notes += [f"layout 4: {note}" for note in to_layout_4(store, domain)]
     return notes
 
 
@@ -50,15 +64,12 @@ def to_layout_2(store: ScoreStore, domain) -> list[str]:
         store.create_table("instances", ["seed", "spec"])
         _adopt(store, "instances", whole=True)
     if "constraints" in stages:
-        p = store.array(THETA).shape[1]
-        store.write_coords("constraints", feature_coord(feature_names(domain, p)),
-                           ["theta", "source_instance"])
+        store.write_coords("constraints", feature_coord(domain), ["theta", "source_instance"])
         store.create_table("constraints", ["theta", "source_instance", "feature"])
         _adopt(store, "constraints", whole=True)
     if store.has_results("raw") and seeds is not None:
-        p = store.array(RAW_CONSTRAINT).shape[1]
         names = _data_names(store, "raw")
-        coords = {**instance_coord(seeds), **feature_coord(feature_names(domain, p))}
+        coords = {**instance_coord(seeds), **feature_coord(domain)}
         store.write_coords("raw", coords, names)
         store.create_table("raw", [*names, *coords])
         notes.append(f"raw: {_adopt(store, 'raw')} blocks adopted")
@@ -87,25 +98,108 @@ def to_layout_3(store: ScoreStore) -> list[str]:
 def _add_environment(store: ScoreStore, group: str) -> int:
     """Add ``group``'s environment array (-1 everywhere) and its integrity column; return
     the number of recorded blocks it covers."""
+    if ENVIRONMENT not in store.layout(group).names:  # else an interrupted run got this far
+        done = store.array(f"{group}/done")
+        store.create_environment(group, done.shape, done.chunks, done.metadata.dimension_names)
+        _record_columns(store, group, [ENVIRONMENT])
+    return len(store.finished_blocks(group))
+
+
+def _record_columns(store: ScoreStore, group: str, names) -> None:
+    """Record in ``group``'s integrity table the digests of arrays ``names`` (new columns,
+    or columns recomputed) for every recorded block; other columns are kept as they are."""
     layout = store.layout(group)
-    if ENVIRONMENT in layout.names:  # an interrupted migration got this far
-        return len(store.finished_blocks(group))
-    done = store.array(f"{group}/done")
-    env = store.create_environment(group, done.shape, done.chunks,
-                                   done.metadata.dimension_names)
-    old = store.array(f"{integrity.GROUP}/{group}")[...]
-    rows = np.zeros((*old.shape[:-1], old.shape[-1] + 1), dtype="uint64")
-    recorded = 0
-    for block in np.ndindex(*old.shape[:-1]):
-        if np.all(old[block] != integrity.NOT_RECORDED):
-            rows[block] = [*old[block], digest(env.blocks[block])]
-            recorded += 1
+    columns = [*layout.names, *(n for n in names if n not in layout.names)]
     table = store.array(f"{integrity.GROUP}/{group}")
-    attrs = dict(table.attrs)
-    store.create(f"{integrity.GROUP}/{group}", rows.shape, table.chunks[:-1] + (rows.shape[-1],),
+    old = table[...]
+    rows = np.zeros((*old.shape[:-1], len(columns)), dtype="uint64")
+    for block in np.ndindex(*old.shape[:-1]):
+        if not np.all(old[block] != integrity.NOT_RECORDED):
+            continue  # not finished: nothing recorded, nothing to add
+        rows[block][:len(layout.names)] = old[block]
+        for name in names:
+            arr = store.array(f"{group}/{name}")
+            chunk = layout.chunk_of(arr.metadata.dimension_names, block)
+            rows[block][columns.index(name)] = digest(arr.blocks[chunk])
+    store.create(f"{integrity.GROUP}/{group}", rows.shape, table.chunks[:-1] + (len(columns),),
                  "uint64", 0, table.metadata.dimension_names,
-                 **{**attrs, "arrays": [*layout.names, ENVIRONMENT]})[...] = rows
-    return recorded
+                 **{**dict(table.attrs), "arrays": columns})[...] = rows
+
+
+def to_layout_4(store: ScoreStore, domain) -> list[str]:
+    notes = []
+    for group in ("instances", "raw", "constraints", "scores"):
+        if store.has_table(group):
+            added = _add_coords(store, group, _coords(store, group, domain))
+            if added:
+                notes.append(f"{group}: coordinates {', '.join(added)}")
+    _describe(store, domain)
+    if store.has_group(evaluation_store.GROUP) and not store.has(evaluation_store.key("selector")):
+        notes.append(_regroup_evaluation(store))
+    store.root.attrs["layout_version"] = 4
+    return notes
+
+
+def _coords(store: ScoreStore, group: str, domain) -> dict:
+    """The coordinates of ``group`` in layout 4 (as the stages write them)."""
+    if group == "instances":
+        return index_coord("instance", len(store.instance_seeds()), "instance index")
+    if group == "raw":
+        return {**instance_coord(store.instance_seeds()), **feature_coord(domain)}
+    if group == "constraints":
+        return {**index_coord("constraint", len(store.source_instances()), "constraint index"),
+                **feature_coord(domain)}
+    return {**instance_coord(store.instance_seeds()), **source_coord(store.source_instances())}
+
+
+def _add_coords(store: ScoreStore, group: str, coords: dict) -> list[str]:
+    """Write ``coords`` into ``group`` and record the digests of those that are new (and of
+    ``feature``, which takes the domain's names); return the names recorded."""
+    layout = store.layout(group)
+    names = [name for name in coords if name not in layout.names or name == "feature"]
+    if not names:
+        return []
+    store.write_coords(group, coords, [name for name in layout.names if name not in coords])
+    _record_columns(store, group, names)
+    return names
+
+
+def _describe(store: ScoreStore, domain) -> None:
+    """The CF attributes of layout 4 on arrays made before it (metadata only)."""
+    described = result_attrs(domain)
+    for group in ("raw", "scores"):
+        if store.has_results(group):
+            for name, attrs in described.items():
+                store.array(result_key(group, name)).attrs.update(attrs)
+    for key, long_name in ((INSTANCE_SEED, "seed the instance was sampled from"),
+                           (INSTANCE_SPEC, "instance spec, JSON text"),
+                           (THETA, "features of the constraint θ; units: feature_units"),
+                           (RAW_CONSTRAINT, "constraint θ extracted from the raw solution "
+                                            "(NaN: none); units: feature_units")):
+        if store.has(key):
+            store.array(key).attrs["long_name"] = long_name
+
+
+def _regroup_evaluation(store: ScoreStore) -> str:
+    """An evaluation of layout ≤ 3 (a group per selector) as one dataset along
+    ``selector``, when its recorded digests hold; else dropped (computed again)."""
+    info = store.stage_info("evaluate")
+    recorded = (info or {}).get("outputs")
+    try:
+        intact = info is not None and not (recorded and store.verify_whole(recorded))
+        old = evaluation_store.read(store) if intact else None
+    except Exception:  # noqa: BLE001 (anything unreadable: compute it again)
+        old = None
+    store.forget_stage("evaluate")
+    if old is None:
+        store.remove(evaluation_store.GROUP)
+        return "evaluation: damaged or incomplete; it is computed again by stage evaluate"
+    units = store.array(result_key("scores", "score")).attrs.get("units", "1")
+    evaluation_store.write(store, old, score_units=units)
+    outputs = {key: f"{digest(store.array(key)[...]):016x}"
+               for key in store.arrays_under(evaluation_store.GROUP)}
+    store.mark_finished("evaluate", **{**info, "outputs": outputs})
+    return f"evaluation: {len(old.selectors)} selectors along the selector dimension"
 
 
 def _data_names(store: ScoreStore, group: str) -> list[str]:

@@ -19,8 +19,8 @@ import numpy as np
 
 import box_core
 from box_core.stats import mean_ci, paired_ratio
+from pipeline.configs import RAWPLANNER
 from pipeline.context import StageContext
-from pipeline.evaluation import RAWPLANNER
 from pipeline.report import fmt
 from pipeline.report.figures import label
 from pipeline.store import ScoreStore, StoreError
@@ -207,7 +207,7 @@ def solve(ctx: StageContext, out_dir: Path) -> dict:
                   entries=1, block=k) for k, s in enumerate(seeds)]
     run_tasks(ctx.client(), tasks, lambda task, rec: records.__setitem__(task.block, rec),
               retries=ctx.retries, label="solve", console=ctx.console,
-              progress=ctx.progress)
+              progress=ctx.progress, every_s=ctx.config["progress_every"])
     ordered = [records[k] for k in range(len(seeds))]
     out_dir.mkdir(parents=True, exist_ok=True)
     plans = out_dir / "plans"

@@ -54,7 +54,7 @@ from pipeline.store import (
     default_path,
     domain_spec_of,
     feature_coord,
-    feature_names,
+    index_coord,
     instance_coord,
     result_key,
     source_coord,
@@ -268,7 +268,8 @@ class Run:
         if tasks:
             self.wrote = True
             run_tasks(self.client, tasks, finished, retries=self.cfg.cluster.retries,
-                      label=label, console=self.console, progress=self.cfg.progress)
+                      label=label, console=self.console, progress=self.cfg.progress,
+                      every_s=self.cfg.progress_every)
         return statuses
 
 
@@ -383,14 +384,19 @@ def stage_instances(run: Run) -> None:
                       for s in seeds], dtype=str)
     chunk = (run.cfg.store.block_instances,)
 
+    coords = index_coord("instance", n, "instance index")
+
     def make():
-        store.create(INSTANCE_SEED, (n,), chunk, "int64", 0, ("instance",))
+        store.create(INSTANCE_SEED, (n,), chunk, "int64", 0, ("instance",),
+                     long_name="seed the instance was sampled from")
         store.create(INSTANCE_SPEC, (n,), chunk, str, "", ("instance",),
-                     description="instance specs, JSON text")
-        store.create_table("instances", ["seed", "spec"])
+                     long_name="instance spec, JSON text")
+        store.write_coords("instances", coords, ["seed", "spec"])
+        store.create_table("instances", ["seed", "spec", *coords])
 
     repairing = store.stage_info("instances") is not None
-    _write_whole(run, "instances", {"seed": seeds, "spec": specs}, make)
+    _write_whole(run, "instances", {"seed": seeds, "spec": specs,
+                                    **{k: v for k, (_, v, _) in coords.items()}}, make)
     run.finish("instances", n=n)
     if repairing:
         run.say(f"instances: {reason}; sampled again from their seeds and repaired")
@@ -411,14 +417,13 @@ def stage_raw(run: Run) -> None:
         run.say("raw: already complete; nothing to do")
         return
     p = run.domain.n_features
-    coords = {**instance_coord(store.instance_seeds()),
-              **feature_coord(feature_names(run.domain, p))}
+    coords = {**instance_coord(store.instance_seeds()), **feature_coord(run.domain)}
     if not store.has_table("raw") or store.missing_arrays("raw"):
         extra = [("tries", (n,), (b,), "int32", 0, ("instance",), {}),
                  ("constraint", (n, p), (b, p), "float64", np.nan, ("instance", "feature"),
-                  {"description": "constraint extracted from the raw solution (NaN: none)"})]
-        store.create_results("raw", (n,), (b,), ("instance",), run.domain.steps, extra,
-                             coords)
+                  {"long_name": "constraint θ extracted from the raw solution (NaN: none); "
+                                "units: feature_units"})]
+        store.create_results("raw", (n,), (b,), ("instance",), run.domain, extra, coords)
     pending = run.pending_blocks("raw", coords)
     store.forget_stage("raw")
     specs, seeds = _inputs(run)
@@ -461,21 +466,23 @@ def stage_constraints(run: Run) -> None:
         keep = np.sort(rng.choice(candidates.m, size=m, replace=False))
     theta = candidates.features[keep]
     bc, p = run.cfg.store.block_constraints, theta.shape[1]
-    names = feature_names(domain, p)
+    coords = {**index_coord("constraint", len(keep), "constraint index"),
+              **feature_coord(domain)}
 
     def make():
         store.create(THETA, theta.shape, (bc, p), "float64", np.nan,
-                     ("constraint", "feature"))
+                     ("constraint", "feature"),
+                     long_name="features of the constraint θ; units: feature_units")
         store.create(SOURCE_INSTANCE, (len(keep),), (bc,), "int64", -1,
-                     ("constraint",), description="instance whose raw solution gave it; "
-                     "-1: fixed")
-        store.write_coords("constraints", feature_coord(names), ["theta", "source_instance"])
-        store.create_table("constraints", ["theta", "source_instance", "feature"])
+                     ("constraint",), long_name="instance whose raw solution gave it; "
+                     "-1: a fixed set")
+        store.write_coords("constraints", coords, ["theta", "source_instance"])
+        store.create_table("constraints", ["theta", "source_instance", *coords])
 
     repairing = store.stage_info("constraints") is not None and "damaged" in reason
-    _write_whole(run, "constraints", {"theta": theta, "feature": np.asarray(names, dtype=str),
-                                      "source_instance": candidates.source_instance[keep]},
-                 make)
+    _write_whole(run, "constraints", {"theta": theta,
+                                      "source_instance": candidates.source_instance[keep],
+                                      **{k: v for k, (_, v, _) in coords.items()}}, make)
     run.finish("constraints", m=len(keep), candidates=candidates.m, m_requested=m)
     if repairing:
         run.say(f"constraints: {reason}; computed again and repaired")
@@ -496,7 +503,7 @@ def stage_scores(run: Run) -> None:
               **source_coord(store.source_instances())}
     if not store.has_table("scores") or store.missing_arrays("scores"):
         store.create_results("scores", (n, m), (bi, bj), ("instance", "constraint"),
-                             run.domain.steps, coords=coords)
+                             run.domain, coords=coords)
     pending = run.pending_blocks("scores", coords)
     store.forget_stage("scores")
     specs, seeds = _inputs(run)

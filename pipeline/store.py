@@ -1,22 +1,31 @@
 """The Zarr v3 score store: layout, identity checks, block writes and integrity checks.
 
 Layout (a contract: users open it with ``xarray.open_zarr(path, group=...)`` or
-``xarray.open_datatree(path, engine="zarr")``)::
+``xarray.open_datatree(path, engine="zarr")``; docs/store.md describes it for them)::
 
     /                 attrs: format, layout_version, identity, config_hash, config,
                              versions, git_revision, created, stages, environments
-    instances/        seed (instance), spec (instance; JSON text)
+    instances/        seed (instance), spec (instance; JSON text); coordinate instance
     raw/              score length feasible time status checks step tries environment
                       (instance), constraint (instance, feature), done (instance);
-                      coordinates instance_seed (instance), feature (feature)
+                      coordinates instance, instance_seed (instance), feature,
+                      feature_units (feature)
     constraints/      theta (constraint, feature), source_instance (constraint);
-                      coordinate feature (feature)
+                      coordinates constraint, feature, feature_units
     scores/           score length feasible time status checks step environment done
-                      (instance, constraint); coordinates instance_seed (instance),
-                      constraint_source (constraint)
-    evaluation/       per selector: order, first_feasible_step, first_feasible_time,
-                      best_score; time_grid; eligible; optimal_score
+                      (instance, constraint); coordinates instance, instance_seed
+                      (instance), constraint, constraint_source (constraint)
+    evaluation/       order (selector, instance, step), first_feasible_step,
+                      first_feasible_time (selector, instance), best_score (selector,
+                      instance, time), eligible, optimal_score (instance); coordinates
+                      selector, instance, step, time (pipeline/evaluation_store.py)
     integrity/        per block group a table of chunk digests (pipeline/integrity.py)
+
+Every dimension has an index coordinate (``instance`` and ``constraint`` count from 0);
+physical quantities carry CF ``units`` and ``long_name`` (times in "seconds", which xarray
+leaves as float seconds unless opened with ``decode_timedelta=True``); ``status`` and
+``step`` are codes with CF ``flag_values``/``flag_meanings`` that
+:func:`pipeline.dataset.with_names` turns into names.
 
 Who writes what (docs/architecture.md, "The store"): workers compute and return arrays;
 only the coordinating process writes the store (arrays, ``done`` masks, integrity records,
@@ -52,8 +61,9 @@ from pipeline.planning import Status
 
 FORMAT = "box-planning-score-store"
 #: 1: the first layout; 2: integrity tables, coordinates, every chunk written; 3: the
-#: environment that computed each block (``environment`` arrays, ``environments`` table).
-LAYOUT_VERSION = 3
+#: environment that computed each block (``environment`` arrays, ``environments`` table);
+#: 4: a dataset: index coordinates, units and names, the evaluation along ``selector``.
+LAYOUT_VERSION = 4
 CODECS = (ZstdCodec(level=3), Crc32cCodec())
 WRITE_CONFIG = {"write_empty_chunks": True}
 
@@ -313,21 +323,19 @@ class ScoreStore:
         self._arrays = {k: v for k, v in self._arrays.items()
                         if k != key and not k.startswith(key + "/")}
 
-    def create_results(self, group: str, shape, chunks, dims, steps=(), extra=(),
+    def create_results(self, group: str, shape, chunks, dims, domain, extra=(),
                        coords: dict | None = None) -> None:
         """The per-entry result arrays of ``group``, its ``done`` mask, coordinates and
-        integrity table.  ``steps``: the domain's planning steps, which ``step`` indexes;
-        ``extra``: (name, shape, chunks, dtype, fill, dims, attrs) of further result arrays;
-        ``coords``: name -> (dims, values, attrs) of coordinate arrays."""
+        integrity table.  ``domain``: the store's domain (its planning steps, which ``step``
+        indexes, and its units); ``extra``: (name, shape, chunks, dtype, fill, dims, attrs)
+        of further result arrays; ``coords``: name -> (dims, values, attrs) of coordinate
+        arrays."""
         coords = coords or {}
         names = []
+        described = result_attrs(domain)
         for name, col in RESULT_COLUMNS.items():
-            attrs = {}
-            if name == "status":
-                attrs = flag_attrs([s.value for s in Status], Status.names(), not_computed=-1)
-            elif name == "step":
-                attrs = flag_attrs(list(range(len(steps))), steps, none=-1)
-            self.create(f"{group}/{name}", shape, chunks, col.dtype, col.fill, dims, **attrs)
+            self.create(f"{group}/{name}", shape, chunks, col.dtype, col.fill, dims,
+                        **described[name])
             names.append(name)
         for name, shp, chk, dtype, fill, dms, attrs in extra:
             self.create(f"{group}/{name}", shp, chk, dtype, fill, dms, **attrs)
@@ -688,8 +696,30 @@ def _shape(region: tuple[slice, ...], shape) -> tuple[int, ...]:
 
 
 def flag_attrs(values, meanings, **special) -> dict:
-    """CF flag attributes: ``flag_values`` and ``flag_meanings`` decode codes to names."""
+    """CF flag attributes: ``flag_values`` and ``flag_meanings`` decode codes to names;
+    ``special`` names the codes outside them (``not_computed=-1``)."""
     return {"flag_values": list(values), "flag_meanings": " ".join(meanings), **special}
+
+
+#: CF units of times: xarray keeps them float seconds unless ``decode_timedelta=True``.
+TIME_UNITS = "seconds"
+
+
+def result_attrs(domain) -> dict[str, dict]:
+    """CF attributes of each result array (RESULT_COLUMNS) of a store of ``domain``."""
+    length = {"units": domain.length_units}
+    return {
+        "score": {"long_name": f"score: minus the {domain.length_name} (NaN: infeasible)",
+                  **length},
+        "length": {"long_name": domain.length_name, **length},
+        "feasible": {"long_name": "a feasible plan was found"},
+        "time": {"long_name": "planning time of the call", "units": TIME_UNITS},
+        "status": {"long_name": "outcome of the planning call",
+                   **flag_attrs([s.value for s in Status], Status.names(), not_computed=-1)},
+        "checks": {"long_name": "collision checks used", "units": "1"},
+        "step": {"long_name": "planning step that failed",
+                 **flag_attrs(list(range(len(domain.steps))), domain.steps, none=-1)},
+    }
 
 
 def dims_of_coords(coords: dict) -> set[str]:
@@ -698,23 +728,28 @@ def dims_of_coords(coords: dict) -> set[str]:
 
 
 # -- coordinates (what xarray shows along each dimension) -----------------------------------
-def feature_names(domain, p: int) -> list[str]:
-    """Names of θ's features: the domain's ``feature_names`` when it has them."""
-    names = list(getattr(domain, "feature_names", None) or ())
-    return names if len(names) == p else [f"theta{k}" for k in range(p)]
+def index_coord(dim: str, n: int, long_name: str) -> dict:
+    """The index coordinate of ``dim``: 0..n-1."""
+    return {dim: ((dim,), np.arange(n, dtype="int64"), {"long_name": long_name})}
 
 
 def instance_coord(seeds) -> dict:
-    return {"instance_seed": (("instance",), np.asarray(seeds, dtype="int64"),
-                              {"description": "seed the instance was sampled from"})}
+    return {**index_coord("instance", len(seeds), "instance index"),
+            "instance_seed": (("instance",), np.asarray(seeds, dtype="int64"),
+                              {"long_name": "seed the instance was sampled from"})}
 
 
-def feature_coord(names) -> dict:
-    return {"feature": (("feature",), np.asarray(names, dtype=str),
-                        {"description": "feature of a constraint θ"})}
+def feature_coord(domain) -> dict:
+    """The names and units of θ's features, as the domain declares them."""
+    features = domain.theta_features
+    return {"feature": (("feature",), np.asarray([f.name for f in features], dtype=str),
+                        {"long_name": "feature of a constraint θ"}),
+            "feature_units": (("feature",), np.asarray([f.units for f in features], dtype=str),
+                              {"long_name": "UDUNITS units of the feature"})}
 
 
 def source_coord(sources) -> dict:
-    return {"constraint_source": (("constraint",), np.asarray(sources, dtype="int64"),
-                                  {"description": "instance whose raw solution gave the "
-                                                  "constraint; -1: a fixed set"})}
+    return {**index_coord("constraint", len(sources), "constraint index"),
+            "constraint_source": (("constraint",), np.asarray(sources, dtype="int64"),
+                                  {"long_name": "instance whose raw solution gave the "
+                                                "constraint; -1: a fixed set"})}

@@ -19,10 +19,7 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from pipeline.configs import Stage
-
-#: Selectors the evaluation accepts besides box_core's own (measured in stage raw).
-RAWPLANNER = "rawplanner"
+from pipeline.configs import RAWPLANNER, Stage
 
 #: Selector the report draws for its learning curve, its C sensitivity and its renders.
 REPORT_NEEDS = "box"
@@ -94,6 +91,9 @@ def check_values(c: dict) -> None:
     _at_least(c, "constraints.m", 1)
     _at_least(c, "store.block_instances", 1)
     _at_least(c, "store.block_constraints", 1)
+    if not c["progress_every"] > 0:
+        raise ConfigError(f"progress_every={c['progress_every']}: must be > 0 (seconds "
+                          "between progress lines)")
     _check_cluster(c)
     _check_planner_and_domain(c)
     _check_evaluate(c)

@@ -78,7 +78,7 @@ def test_every_block_records_the_environment_that_computed_it(made):
     assert table == [fingerprint()]
     assert (environment(store, "scores") == 0).all() and (environment(store, "raw") == 0).all()
     doc = status(store)
-    assert doc["layout_version"] == 3
+    assert doc["layout_version"] == 4
     assert doc["environments"] == [{"index": 0, "entries": {"raw": 24, "scores": 360},
                                     "environment": fingerprint()}]
 
@@ -177,10 +177,10 @@ def test_a_layout_2_store_opens_resumes_and_migrates_keeping_every_entry(tmp_pat
     damage_block(store)
     res = run_layout_2(store, "stage=generate")
     assert res.returncode == 0, res.stderr + res.stdout
-    assert "migrated to layout 3" in res.stdout
+    assert "migrated to layout 3" in res.stdout and "migrated to layout 4" in res.stdout
     assert "computed before environments were recorded" in res.stdout
     doc = status(store)
-    assert doc["layout_version"] == 3 and not doc["damaged"]
+    assert doc["layout_version"] == 4 and not doc["damaged"]
     assert [(e["index"], e["entries"]) for e in doc["environments"]] == [
         (-1, {"raw": 12, "scores": 80}), (0, {"scores": 16})]
     after = pr.matrix(store)

@@ -28,7 +28,8 @@ def test_open_zarr_gives_coordinates_and_flag_attributes(made):
     step = scores["step"]
     assert step.attrs["flag_meanings"].split() == ["via_leg", "goal_leg"]
     theta = xr.open_zarr(store, group="constraints")["theta"]
-    assert list(theta["feature"].values) == ["theta0", "theta1"]
+    assert list(theta["feature"].values) == ["via_x", "via_y"]
+    assert list(theta["feature_units"].values) == ["m", "m"]
     raw = xr.open_zarr(store, group="raw")
     assert raw["constraint"].dims == ("instance", "feature") and "instance_seed" in raw.coords
 
@@ -38,7 +39,7 @@ def test_open_datatree_reads_the_whole_store(made):
     tree = xr.open_datatree(store, engine="zarr")
     assert {"instances", "raw", "constraints", "scores", "evaluation"} <= set(tree.children)
     assert tree["scores"]["score"].dims == ("instance", "constraint")
-    assert tree["evaluation/box"]["order"].dims == ("instance", "step")
+    assert tree["evaluation"]["order"].dims == ("selector", "instance", "step")
     np.testing.assert_array_equal(tree["scores"]["feasible"].values, pr.matrix(store)["feasible"])
 
 
@@ -48,7 +49,10 @@ def _as_layout_1(store):
     g = zarr.open_group(store, mode="r+", use_consolidated=False)
     del g["integrity"]
     for key in ("scores/instance_seed", "scores/constraint_source", "raw/instance_seed",
-                "raw/feature", "constraints/feature", "scores/environment", "raw/environment"):
+                "raw/feature", "constraints/feature", "scores/environment", "raw/environment",
+                "instances/instance", "raw/instance", "scores/instance", "scores/constraint",
+                "constraints/constraint", "raw/feature_units", "constraints/feature_units",
+                "evaluation"):
         del g[key]
     for group in ("raw", "scores", "constraints"):
         for _, arr in g[group].arrays():
@@ -63,7 +67,7 @@ def _as_layout_1(store):
 
 def test_a_layout_1_store_is_read_then_migrated_without_recomputing(made, tmp_path):
     """Re-running it finished writes nothing; the first run with work migrates it (to
-    layout 2, then 3)."""
+    layout 2, then 3, then 4)."""
     copy = tmp_path / "old.zarr"
     shutil.copytree(made[0], copy)
     _as_layout_1(copy)
@@ -76,10 +80,10 @@ def test_a_layout_1_store_is_read_then_migrated_without_recomputing(made, tmp_pa
     assert "scores: already complete" in res.stdout and "migrated" not in res.stdout
     res = pr.run(copy, "stage=evaluate", "evaluate.k=5")
     assert res.returncode == 0, res.stderr + res.stdout
-    assert "migrated to layout 2" in res.stdout and "migrated to layout 3" in res.stdout
+    assert all(f"migrated to layout {k}" in res.stdout for k in (2, 3, 4))
     assert "dask:" not in res.stdout
     res = CliRunner().invoke(app, ["status", str(copy), "--json"])
     doc = json.loads(res.output)
-    assert res.exit_code == 0 and doc["layout_version"] == 3 and not doc["damaged"]
+    assert res.exit_code == 0 and doc["layout_version"] == 4 and not doc["damaged"]
     assert pr.same_matrix(pr.matrix(made[0]), pr.matrix(copy))
     assert "instance_seed" in xr.open_zarr(copy, group="scores").coords

@@ -16,8 +16,18 @@ from pipeline.domains.specs import InstanceError, finite_rows, require
 from pipeline.planning import PlannerSettings, PlanResult, Status
 from pipeline.planning.registry import make_planner, plans_nothing
 
-__all__ = ["ConstraintSet", "Domain", "InstanceError", "RawResult", "RawSearch",
+__all__ = ["ConstraintSet", "Domain", "Feature", "InstanceError", "RawResult", "RawSearch",
            "constraint_row", "finite_rows", "require"]
+
+
+@dataclass(frozen=True)
+class Feature:
+    """One entry of a constraint's feature row, as the store names it (``feature``
+    coordinate), with its UDUNITS units ("1": a number without units)."""
+
+    name: str
+    units: str
+    description: str
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,8 +73,9 @@ class Domain(abc.ABC):
 
     Subclasses set ``name``, ``config_class`` (a dataclass, the schema of
     ``conf/domain/<name>.yaml``), ``fixed_constraints`` (True when Θ is a fixed set,
-    False when it is extracted from RAWPLANNER's solutions) and ``steps``, and get their
-    planners from :meth:`planner_for` (never by the planner's name).
+    False when it is extracted from RAWPLANNER's solutions), ``steps``, ``theta_features``
+    and ``length_units``, and get their planners from :meth:`planner_for` (never by the
+    planner's name).
     """
 
     name: ClassVar[str]
@@ -73,6 +84,12 @@ class Domain(abc.ABC):
     #: the steps of one planning call, in order; a failed PlanResult names the one that
     #: failed in ``step`` (stored as its index in the ``step`` arrays of the store)
     steps: ClassVar[tuple[str, ...]] = ()
+    #: what each entry of a constraint's feature row is (the store's ``feature`` coordinate)
+    theta_features: ClassVar[tuple[Feature, ...]]
+    #: UDUNITS units of a path length (and so of a score, its negative)
+    length_units: ClassVar[str]
+    #: what a path length measures, for the store's ``long_name`` of ``length``
+    length_name: ClassVar[str] = "path length"
 
     def __init__(self, config, planner: PlannerSettings):
         self.config = config
@@ -90,7 +107,7 @@ class Domain(abc.ABC):
     @property
     def n_features(self) -> int:
         """Length of a constraint's feature row."""
-        raise NotImplementedError
+        return len(self.theta_features)
 
     @abc.abstractmethod
     def sample_instance(self, seed: int) -> dict[str, Any]:

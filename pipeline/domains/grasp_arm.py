@@ -19,9 +19,15 @@ from pathlib import Path
 import numpy as np
 import pybullet as pb
 
-from pipeline.domains.base import ConstraintSet, Domain, RawSearch, constraint_row
+from pipeline.domains.base import ConstraintSet, Domain, Feature, RawSearch, constraint_row
 from pipeline.domains.geometry import Box, sample_obstacles
-from pipeline.domains.grasps import Grasp, grasp_index, grasp_set, pregrasp_pose
+from pipeline.domains.grasps import (
+    GRASP_FEATURES,
+    Grasp,
+    grasp_index,
+    grasp_set,
+    pregrasp_pose,
+)
 from pipeline.domains.ik import solve_ik
 from pipeline.domains.schemas import GraspArmConfig
 from pipeline.domains.specs import parse_box, parse_obstacles, require
@@ -96,6 +102,9 @@ class GraspArmDomain(Domain):
     config_class = GraspArmConfig
     fixed_constraints = True
     steps = ("ik", "arm_path")
+    theta_features = (Feature("arm", "1", "which Panda grasps: 0 or 1"), *GRASP_FEATURES)
+    length_units = "rad"
+    length_name = "joint-space path length of the arm"
 
     def __init__(self, config: GraspArmConfig, planner):
         super().__init__(config, planner)
@@ -108,9 +117,6 @@ class GraspArmDomain(Domain):
         self.motion = self.planner_for(P.Panda)
         self._scene: GraspArmScene | None = None
 
-    @property
-    def n_features(self) -> int:
-        return 6
 
     # -- instances -------------------------------------------------------------------------
     def sample_instance(self, seed: int) -> dict:

@@ -27,9 +27,9 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.domains.base import Domain, RawSearch, constraint_row
+from pipeline.domains.base import Domain, Feature, RawSearch, constraint_row
 from pipeline.domains.geometry import Box, sample_obstacles
-from pipeline.domains.grasps import Grasp, grasp_set, pregrasp_pose
+from pipeline.domains.grasps import GRASP_FEATURES, Grasp, grasp_set, pregrasp_pose
 from pipeline.domains.ik import solve_ik
 from pipeline.domains.mobile_world import (
     OBSTACLE_RGBA,
@@ -78,6 +78,11 @@ class GraspBaseDomain(Domain):
     config_class = GraspBaseConfig
     fixed_constraints = False
     steps = STEPS
+    theta_features = (Feature("base_x", "m", "base position x"),
+                      Feature("base_y", "m", "base position y"),
+                      Feature("base_yaw", "rad", "base heading ψ"), *GRASP_FEATURES)
+    length_units = "rad"
+    length_name = "joint-space path length of the arm"
 
     def __init__(self, config: GraspBaseConfig, planner):
         super().__init__(config, planner)
@@ -91,9 +96,6 @@ class GraspBaseDomain(Domain):
         self.motion = self.planner_for(UnladenArm)
         self._scene: MobileScene | None = None
 
-    @property
-    def n_features(self) -> int:
-        return 8
 
     # -- instances -------------------------------------------------------------------------
     def sample_instance(self, seed: int) -> dict:

@@ -10,8 +10,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.domains.base import Feature
 from pipeline.domains.geometry import Box
 from pipeline.sim.transforms import quaternion, rot_z
+
+#: A grasp's feature row after its arm (grasp_base has one arm, so its θ starts here).
+GRASP_FEATURES = (
+    Feature("approach_x", "1", "direction the hand moves in, object frame, x"),
+    Feature("approach_y", "1", "direction the hand moves in, object frame, y"),
+    Feature("approach_z", "1", "direction the hand moves in, object frame, z"),
+    Feature("rotation", "rad", "wrist rotation about the approach"),
+    Feature("depth", "m", "TCP offset from the object's centre along the approach"),
+)
 
 
 @dataclass(frozen=True)

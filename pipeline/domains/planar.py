@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.domains.base import Domain, RawSearch, constraint_row
+from pipeline.domains.base import Domain, Feature, RawSearch, constraint_row
 from pipeline.domains.schemas import PlanarConfig
 from pipeline.domains.specs import InstanceError, finite_rows, require
 from pipeline.planning import PlanResult, Robot, Status, path_length
@@ -63,6 +63,8 @@ class PlanarDomain(Domain):
     config_class = PlanarConfig
     fixed_constraints = False
     steps = ("via_leg", "goal_leg")
+    theta_features = (Feature("via_x", "m", "via point x"), Feature("via_y", "m", "via point y"))
+    length_units = "m"
 
     def __init__(self, config: PlanarConfig, planner):
         super().__init__(config, planner)
@@ -84,9 +86,6 @@ class PlanarDomain(Domain):
                 raise ValueError(f"domain.{key} must be 2 numbers inside the room")
         self.motion = self.planner_for(PlanarScene)
 
-    @property
-    def n_features(self) -> int:
-        return 2
 
     def sample_instance(self, seed: int) -> dict:
         c = self.config

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.evaluation import RAWPLANNER, own_constraints
+from pipeline import evaluation_store
+from pipeline.evaluation import own_constraints
 from pipeline.store import ScoreStore, StoreError, result_key
 
 
@@ -70,8 +71,8 @@ class StoreResults:
 
     def raw_curve(self) -> np.ndarray:
         """RAWPLANNER's best score versus ``time_grid``, per row (its one plan, when found)."""
-        reached = self.raw_feasible[:, None] & (self.raw_time[:, None] <= self.time_grid[None])
-        return np.where(reached, -self.raw_length[:, None], self.failure_value)
+        return evaluation_store.raw_curve(self.raw_feasible, self.raw_time, self.raw_length,
+                                          self.time_grid, self.failure_value)
 
 
 def tell_apart(results: list[StoreResults]) -> None:
@@ -108,13 +109,7 @@ def load(path) -> StoreResults:
         raise StoreError(f"{store.path} has no evaluation yet; run stage=evaluate (or "
                          "stage=all) on it first")
     scores, feasible, times, theta = store.score_matrix()
-    evaluated = [line["name"] for line in info["summary"]["selectors"]]
-    fft, best, order = {}, {}, {}
-    for name in evaluated:
-        fft[name] = store.array(f"evaluation/{name}/first_feasible_time")[...]
-        if name != RAWPLANNER:
-            best[name] = store.array(f"evaluation/{name}/best_score")[...]
-            order[name] = store.array(f"evaluation/{name}/order")[...]
+    stored = evaluation_store.read(store)
     has_raw = store.stage_info("raw") is not None
     n = scores.shape[0]
 
@@ -134,10 +129,10 @@ def load(path) -> StoreResults:
         raw_length=raw("length", np.full(n, np.nan)),
         summary=info["summary"], settings=info["settings"],
         failure_value=float(info["failure_value"]),
-        time_grid=store.array("evaluation/time_grid")[...],
-        eligible=store.array("evaluation/eligible")[...],
-        optimal_score=store.array("evaluation/optimal_score")[...],
-        first_feasible_time=fft, best_score=best, order=order,
+        time_grid=stored.time_grid, eligible=stored.eligible,
+        optimal_score=stored.optimal_score, first_feasible_time=stored.first_feasible_time,
+        best_score={k: v for k, v in stored.best_score.items() if k in stored.order},
+        order=stored.order,
         leakage=info.get("leakage"),
         forbidden=own_constraints(store) if (info.get("leakage") or {}).get("hidden") else None,
     )

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.domains.base import Domain, RawSearch, constraint_row
+from pipeline.domains.base import Domain, Feature, RawSearch, constraint_row
 from pipeline.domains.geometry import rectangle, sample_obstacles
 from pipeline.domains.ik import IKOutcome, solve_ik
 from pipeline.domains.mobile_world import (
@@ -52,6 +52,21 @@ class PickPlaceDomain(Domain):
     config_class = PickPlaceConfig
     fixed_constraints = False
     steps = tuple(plan_steps.STEPS)
+    theta_features = (
+        Feature("grasp_fraction", "1", "grasp position along the rod, × half its length"),
+        Feature("grasp_rotation", "rad", "wrist rotation about the approach"),
+        Feature("grasp_tilt", "rad", "approach tilt about the rod's axis"),
+        Feature("place_x", "m", "rod placement x"), Feature("place_y", "m", "rod placement y"),
+        Feature("place_yaw", "rad", "rod placement yaw"),
+        Feature("place_base_x", "m", "base pose for placing (k_b) x"),
+        Feature("place_base_y", "m", "base pose for placing (k_b) y"),
+        Feature("place_base_yaw", "rad", "base pose for placing (k_b) heading ψ"),
+        Feature("subgoal_x", "m", "base subgoal (k_sg) x"),
+        Feature("subgoal_y", "m", "base subgoal (k_sg) y"),
+        Feature("subgoal_yaw", "rad", "base subgoal (k_sg) heading ψ"))
+    #: base path (yaw scaled by psi_scale, m/rad) + arm_weight (m/rad) × arm joint paths
+    length_units = "m"
+    length_name = "base path length plus arm_weight × arm joint path lengths"
     home = P.HOME
     start_pose = START_POSE
 
@@ -84,9 +99,6 @@ class PickPlaceDomain(Domain):
         self._scene: PickPlaceScene | None = None
         self._carry: dict[tuple[int, float], tuple[np.ndarray | None, Status]] = {}
 
-    @property
-    def n_features(self) -> int:
-        return 12
 
     # -- instances -------------------------------------------------------------------------
     def sample_instance(self, seed: int) -> dict:
