@@ -3,8 +3,9 @@
 Tasks are pure functions of plain inputs (the domain spec, the block's instance specs and
 seeds, its θ rows): they never open the store, so workers need no access to it, and a
 retried or duplicated task returns exactly the same values.  Only the coordinating process
-writes what they return (docs/architecture.md, "The store").  The domain (and with it any
-simulator client) is built once per worker process and cached.
+writes what they return (docs/architecture.md, "The store"); while they run, tasks only
+report how many entries they have done (``pipeline.entry_progress``).  The domain (and
+with it any simulator client) is built once per worker process and cached.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from collections import Counter
 import numpy as np
 
 from pipeline.domains.cache import domain_for
+from pipeline.entry_progress import EntryReporter
 from pipeline.environment import fingerprint
 from pipeline.planning import PlanResult, Status
 from pipeline.planning.registry import planner_class
@@ -58,12 +60,13 @@ def score_block(domain_spec: dict, run_seed: int, specs: list[str], seeds: list[
         arrays["time"][...] = 0.0
         return arrays, _report(Counter({Status.SKIPPED.name.lower(): arrays["status"].size}),
                                [], t0)
-    results = []
+    results, reporter = [], EntryReporter()
     for spec, inst_seed in zip(specs, seeds, strict=True):
         instance = domain.check_instance(json.loads(spec))
         for j, row in enumerate(theta, start=first_constraint):
             results.append(domain.plan(instance, row,
                                        seed=entry_seed(run_seed, int(inst_seed), j)))
+            reporter.add()
     return _results_block(results, shape, domain.steps), _summary(results, t0)
 
 
@@ -72,9 +75,11 @@ def raw_block(domain_spec: dict, run_seed: int, specs: list[str],
     """RAWPLANNER on the given instances; return (raw result arrays, report)."""
     t0 = time.perf_counter()
     domain = domain_for(domain_spec)
-    raws = [domain.raw_plan(domain.check_instance(json.loads(spec)),
-                            seed=entry_seed(run_seed, int(s), RAW_ENTRY))
-            for spec, s in zip(specs, seeds, strict=True)]
+    raws, reporter = [], EntryReporter()
+    for spec, s in zip(specs, seeds, strict=True):
+        raws.append(domain.raw_plan(domain.check_instance(json.loads(spec)),
+                                    seed=entry_seed(run_seed, int(s), RAW_ENTRY)))
+        reporter.add()
     arrays = _results_block([r.plan for r in raws], (len(raws),), domain.steps)
     arrays["tries"] = np.array([r.tries for r in raws], dtype="int32")
     arrays["constraint"] = np.stack([r.constraint for r in raws]).astype("float64")

@@ -319,6 +319,7 @@ def test_what_a_stage_needs_is_checked_before_it_starts(overrides, key):
     (("solve.selectors=[oracle]",), "solve.selectors"),
     (("solve.max_seconds=0",), "solve.max_seconds=0"),
     (("planner.max_checks=0",), "planner.max_checks"),
+    (("progress_every=0",), "progress_every=0"),
 ])
 def test_every_key_is_checked(overrides, key):
     with pytest.raises(ConfigError, match=key.replace("[", r"\[")):

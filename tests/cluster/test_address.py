@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import shutil
 import time
 from pathlib import Path
@@ -91,12 +92,17 @@ def test_one_worker_killed_run_completes(tmp_path, dask_procs, local_reference):
     dask_procs.worker()
     dask_procs.wait_for_workers(2)
     store = tmp_path / "a.zarr"
-    proc = pr.start(store, "cluster=address", f"cluster.address={address}")
+    proc = pr.start(store, "cluster=address", f"cluster.address={address}", "progress=true",
+                    "progress_every=0.01")
     assert _wait_for_blocks(store, proc) < 24 * 15  # killed mid-run
     kill(doomed)
     out = proc.communicate()[0]
     assert proc.returncode == 0, out
     assert pr.same_matrix(pr.matrix(store), local_reference)
+    # the lost worker's entries in progress are shown until its blocks run again; the
+    # entries counted done are those written, each once
+    counts = [int(k) for k in re.findall(r"scores: (\d+)/360 entries", out)]
+    assert max(counts) == 360 and "scores: 360/360 entries (100%)" in out
 
 
 def test_all_workers_killed_watchdog_stops_the_run(tmp_path, dask_procs):
