@@ -17,10 +17,10 @@ runner = CliRunner()
 
 #: One chunk per group (coordinates and integrity records included).
 FLIPPED = ["instances/spec/c/1", "raw/constraint/c/1/0", "constraints/theta/c/0/0",
-           "scores/time/c/1/2", "scores/instance_seed/c/2", "evaluation/box/order/c/0/0",
+           "scores/time/c/1/2", "scores/instance_seed/c/2", "evaluation/order/c/0/0/0",
            "integrity/scores/c/1/1/0"]
 DELETED = ["instances/seed/c/0", "raw/time/c/2", "constraints/source_instance/c/1",
-           "scores/feasible/c/0/0", "scores/done/c/3/2", "evaluation/time_grid/c/0",
+           "scores/feasible/c/0/0", "scores/done/c/3/2", "evaluation/time/c/0",
            "integrity/raw/c/0/0"]
 
 

@@ -46,7 +46,7 @@ def test_store_opens_with_xarray_with_named_dimensions(reference):
     assert theta.dims == ("constraint", "feature") and theta.shape == (15, 2)
     raw = xr.open_zarr(store, group="raw")
     assert raw["constraint"].dims == ("instance", "feature")
-    box = xr.open_zarr(store, group="evaluation/box")
+    box = xr.open_zarr(store, group="evaluation").sel(selector="box")
     assert box["order"].dims == ("instance", "step")
 
 
