@@ -240,24 +240,29 @@ def _write_parquet(out: Path, store, arrays, meta) -> None:
 
 
 def _write_netcdf(out: Path, store, arrays, meta) -> None:
+    """The entry arrays with the store's own attributes (units, long names, flag codes) and
+    coordinates (instance, constraint, feature names and units where the store has them)."""
     import xarray as xr
 
     entry = ("instance", "constraint")
-    data = {name: (entry, arrays[key]) for name, key in (
-        ("scores", "scores"), ("feasible", "feasible"), ("times", "times"),
-        ("length", "length"), ("status", "status"), ("checks", "checks"), ("step", "step"),
-        ("done", "done"), ("forbidden", "forbidden")) if key in arrays}
+    n, m = arrays["feasible"].shape
+    data, stored = {}, {"scores": "score", "times": "time"}
+    for name in ("scores", "feasible", "times", "length", "status", "checks", "step", "done",
+                 "forbidden"):
+        if name in arrays:
+            key = result_key("scores", stored.get(name, name))
+            attrs = dict(store.array(key).attrs) if store.has(key) else {}
+            attrs.pop("coordinates", None)
+            data[name] = xr.Variable(entry, arrays[name], attrs)
+    data["scores"].attrs["long_name"] = "score: minus the path length (NaN: infeasible)"
     data["features"] = (("constraint", "feature"), arrays["features"])
-    ds = xr.Dataset(data, coords={"instance_seed": ("instance", arrays["instance_seed"])})
-    ds["scores"].attrs.update(units="rad", long_name="-(joint-space path length); NaN where "
-                              "infeasible")
-    ds["times"].attrs.update(units="s", long_name="planning time per call")
-    from pipeline.planning import Status
-    from pipeline.store import flag_attrs
-
-    ds["status"].attrs.update(flag_attrs([int(st) for st in Status], Status.names(),
-                                         not_computed=-1))
-    ds["step"].attrs.update(flag_attrs(list(range(len(meta["steps"]))), meta["steps"], none=-1))
+    coords = {"instance": np.arange(n), "constraint": np.arange(m),
+              "instance_seed": ("instance", arrays["instance_seed"])}
+    for name in ("feature", "feature_units"):
+        if store.has(f"constraints/{name}"):
+            values = store.array(f"constraints/{name}")[...]
+            coords[name] = ("feature", [str(v) for v in values])
+    ds = xr.Dataset(data, coords=coords)
     ds.attrs.update(metadata=json.dumps(meta), failure_rule=meta["failure_rule"],
                     **({"failure_value": meta["failure_value"]}
                        if meta["failure_value"] is not None else {}))

@@ -123,7 +123,13 @@ def test_every_export_keeps_nan_scores_and_evaluates_like_its_store(made, tmp_pa
 
         with xr.open_dataset(out) as ds:
             scores, meta = ds["scores"].values, json.loads(ds.attrs["metadata"])
-            assert ds["times"].attrs["units"] == "s"
+            assert ds["times"].attrs["units"] == "seconds" and ds["times"].dtype == float
+            assert ds["scores"].attrs["units"] == "m"  # the planar domain's lengths
+            assert list(ds["feature"].values) == ["via_x", "via_y"]
+            assert ds.indexes["instance"].tolist() == list(range(feasible.shape[0]))
+            from pipeline.dataset import with_names
+            assert set(np.unique(with_names(ds)["status"].values)) <= {
+                "ok", "no_ik", "goal_in_collision", "budget_exhausted", "start_in_collision"}
             assert ds.attrs["failure_value"] == db["failure_value"]
     else:
         import pandas as pd
