@@ -650,6 +650,8 @@ class ScoreStore:
             values = self.array(key)[...]
             return values if rows is None else values[rows]
 
+        if rows is None:
+            self.require_done("scores")
         feasible, length, times = (read(result_key("scores", name))
                                    for name in ("feasible", "length", "time"))
         if rows is None and np.isnan(times).any():
@@ -663,6 +665,18 @@ class ScoreStore:
 
     def done(self, group: str) -> np.ndarray:
         return self.array(f"{group}/done")[...]
+
+    def require_done(self, group: str) -> None:
+        """A StoreError naming the unfinished blocks of ``group`` unless every entry's block
+        finished: readers never take a missing entry for an infeasible one."""
+        finished, pending = self.blocks(group)
+        if pending:
+            mask = self.done(group)
+            shown = ", ".join(str(b) for b in pending[:3]) + (" …" if len(pending) > 3 else "")
+            raise StoreError(
+                f"{self.path}: {group} has {int((~mask).sum())} of {mask.size} entries in "
+                f"{len(pending)} unfinished block(s) ({shown}); finish it with "
+                "python -m pipeline stage=generate")
 
     def blocks(self, group: str) -> tuple[list[tuple[int, ...]], list[tuple[int, ...]]]:
         """(finished, pending) chunk indices of ``group`` according to its ``done`` mask."""
