@@ -79,8 +79,8 @@ class StoreConfig:
 
 @dataclass
 class SlurmConfig:
-    """cluster=slurm: worker jobs submitted through dask-jobqueue (README, "Running on a
-    cluster").  Each job runs ``cores`` single-threaded worker processes."""
+    """cluster=slurm: worker jobs submitted through dask-jobqueue (docs/clusters.md).  Each
+    job runs ``cores`` single-threaded worker processes."""
 
     queue: str | None = None  # partition (sbatch -p)
     account: str | None = None  # sbatch -A
@@ -199,7 +199,8 @@ def help_config() -> dict:
                   "the leave-one-out comparison of constraint selectors (BOX), reports and "
                   "live solving.\nUsage: " + APP_NAME + " stage=NAME key=value ... "
                   "(stages: " + ", ".join(s.value for s in Stage) + "; -m for sweeps)",
-        "footer": "README.md and docs/ explain every key; --cfg job prints the composed "
+        "footer": "README.md and docs/pipeline.md say what each key does, docs/config.md "
+                  "lists every default; --cfg job prints the composed "
                   "config, --hydra-help Hydra's own flags.",
         "template": "${hydra.help.header}\n\n== Configuration groups (group=option) ==\n"
                     + groups + "\n\n== Config ==\nOverride anything below "
