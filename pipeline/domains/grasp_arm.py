@@ -108,11 +108,6 @@ class GraspArmDomain(Domain):
 
     def __init__(self, config: GraspArmConfig, planner):
         super().__init__(config, planner)
-        c = config
-        if not 0 <= c.obstacles_min <= c.obstacles_max:
-            raise ValueError("domain: need 0 <= obstacles_min <= obstacles_max")
-        if c.ik_restarts < 1 or c.pregrasp_offset < 0:
-            raise ValueError("domain: need ik_restarts >= 1 and pregrasp_offset >= 0")
         self.grasps = grasp_set()
         self.motion = self.planner_for(P.Panda)
         self._scene: GraspArmScene | None = None

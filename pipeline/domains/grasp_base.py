@@ -37,7 +37,6 @@ from pipeline.domains.mobile_world import (
     MobileScene,
     Table,
     TablePlacer,
-    check_mobile_config,
     render_two_panels,
     sample_base_pose,
 )
@@ -86,10 +85,6 @@ class GraspBaseDomain(Domain):
 
     def __init__(self, config: GraspBaseConfig, planner):
         super().__init__(config, planner)
-        c = config
-        check_mobile_config(c)
-        if not c.reach_radius > 0 or c.raw_base_samples < 1:
-            raise ValueError("domain: need reach_radius > 0 and raw_base_samples >= 1")
         self.grasps = [g for g in grasp_set() if g.arm == 0]
         self._grasp_index = {tuple(np.round(g.features[1:], 9)): k
                              for k, g in enumerate(self.grasps)}

@@ -69,13 +69,6 @@ class TablePlacer:
         return None
 
 
-def check_mobile_config(c) -> None:
-    """The settings both mobile domains share (ValueError naming them)."""
-    if c.obstacles < 0 or c.ik_restarts < 1 or c.pregrasp_offset < 0:
-        raise ValueError("domain: need obstacles >= 0, ik_restarts >= 1 and "
-                         "pregrasp_offset >= 0")
-
-
 def sample_base_pose(rng: np.random.Generator, centre, radius: float) -> np.ndarray:
     """(x, y, ψ): a point uniform in the disc of ``radius`` around ``centre``, ψ uniform."""
     r = radius * np.sqrt(rng.uniform())

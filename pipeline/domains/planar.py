@@ -68,22 +68,11 @@ class PlanarDomain(Domain):
 
     def __init__(self, config: PlanarConfig, planner):
         super().__init__(config, planner)
-        c = config
-        if not (c.size > 0 and 0 < c.robot_radius < c.size / 4):
-            raise ValueError("domain: need size > 0 and 0 < robot_radius < size / 4")
-        if not 0 <= c.obstacles_min <= c.obstacles_max:
-            raise ValueError("domain: need 0 <= obstacles_min <= obstacles_max")
-        if not 0 < c.obstacle_size_min <= c.obstacle_size_max:
-            raise ValueError("domain: need 0 < obstacle_size_min <= obstacle_size_max")
-        if c.raw_max_tries < 1:
-            raise ValueError("domain.raw_max_tries must be >= 1")
+        c = config  # its values were checked by the schema (PlanarConfig)
         self.start = np.asarray(c.start, float)
         self.goal = np.asarray(c.goal, float)
         self.lower = np.full(2, c.robot_radius)
         self.upper = np.full(2, c.size - c.robot_radius)
-        for key, q in (("start", self.start), ("goal", self.goal)):
-            if q.shape != (2,) or np.any(q < self.lower) or np.any(q > self.upper):
-                raise ValueError(f"domain.{key} must be 2 numbers inside the room")
         self.motion = self.planner_for(PlanarScene)
 
 

@@ -1,6 +1,8 @@
 """The schemas of ``conf/domain/*.yaml``: one dataclass per domain, checked by Hydra and
 by :func:`pipeline.domains.load_domain`.  Plain data, so that registering the pipeline's
-configs loads no domain (and no simulator)."""
+configs loads no domain (and no simulator).  Each schema checks its values when it is
+built (``__post_init__``, ValueError naming the key), so the up-front validation refuses
+a bad value before anything is written."""
 
 from __future__ import annotations
 
@@ -22,6 +24,20 @@ class PlanarConfig:
     obstacle_size_max: float = 3.0
     raw_max_tries: int = 50  # via-points RAWPLANNER draws before giving up
 
+    def __post_init__(self):
+        if not (self.size > 0 and 0 < self.robot_radius < self.size / 4):
+            raise ValueError("domain: need size > 0 and 0 < robot_radius < size / 4")
+        _obstacle_range(self.obstacles_min, self.obstacles_max)
+        if not 0 < self.obstacle_size_min <= self.obstacle_size_max:
+            raise ValueError("domain: need 0 < obstacle_size_min <= obstacle_size_max")
+        if self.raw_max_tries < 1:
+            raise ValueError("domain.raw_max_tries must be >= 1")
+        lower, upper = self.robot_radius, self.size - self.robot_radius
+        for key in ("start", "goal"):
+            q = getattr(self, key)
+            if len(q) != 2 or not all(lower <= v <= upper for v in q):
+                raise ValueError(f"domain.{key} must be 2 numbers inside the room")
+
 
 @dataclass
 class GraspArmConfig:
@@ -35,6 +51,12 @@ class GraspArmConfig:
     target_size: list[float] = field(default_factory=lambda: [0.04, 0.04, 0.12])
     pregrasp_offset: float = 0.10
     ik_restarts: int = 4
+
+    def __post_init__(self):
+        _obstacle_range(self.obstacles_min, self.obstacles_max)
+        _sizes(self)
+        if self.ik_restarts < 1 or self.pregrasp_offset < 0:
+            raise ValueError("domain: need ik_restarts >= 1 and pregrasp_offset >= 0")
 
 
 @dataclass
@@ -50,6 +72,11 @@ class GraspBaseConfig:
     pregrasp_offset: float = 0.10
     ik_restarts: int = 10
     raw_base_samples: int = 40  # collision-free base poses RAWPLANNER tries before giving up
+
+    def __post_init__(self):
+        _mobile(self)
+        if not self.reach_radius > 0 or self.raw_base_samples < 1:
+            raise ValueError("domain: need reach_radius > 0 and raw_base_samples >= 1")
 
 
 @dataclass
@@ -73,6 +100,51 @@ class PickPlaceConfig:
     raw_placements: int = 6  # placements per grasp
     raw_base_samples: int = 6  # collision-free k_b per placement
     step_order: str = "paper"  # or "cheap_first" (pipeline.domains.pick_place.ORDERS)
+
+    def __post_init__(self):
+        _mobile(self)
+        if not self.rod_lengths or any(not 0.1 <= v <= 1.2 for v in self.rod_lengths):
+            raise ValueError("domain.rod_lengths: need one or more lengths in [0.1, 1.2] m")
+        if not 0.6 <= self.door_width <= PICK_PLACE_DOOR_MAX:
+            raise ValueError(f"domain.door_width must be in [0.6, {PICK_PLACE_DOOR_MAX:g}] m "
+                             "(the platform is 0.5 m wide)")
+        if not (self.reach_radius > 0 and self.psi_scale > 0 and self.arm_weight >= 0
+                and self.base_max_checks >= 1 and self.base_resolution > 0):
+            raise ValueError("domain: need reach_radius, psi_scale, base_resolution > 0, "
+                             "arm_weight >= 0 and base_max_checks >= 1")
+        if self.step_order not in PICK_PLACE_ORDERS:
+            raise ValueError(f"domain.step_order must be one of {', '.join(PICK_PLACE_ORDERS)}"
+                             f", got {self.step_order!r}")
+        if min(self.raw_grasps, self.raw_placements, self.raw_base_samples) < 1:
+            raise ValueError("domain.raw_*: need at least 1 of each")
+
+
+#: pick_place's step orders (the keys of pipeline.domains.pick_place.plan_steps.ORDERS) and
+#: its widest door (the wall between the rooms less the platform's margins), metres
+PICK_PLACE_ORDERS = ("paper", "cheap_first")
+PICK_PLACE_DOOR_MAX = 3.0
+
+
+def _obstacle_range(low: int, high: int) -> None:
+    if not 0 <= low <= high:
+        raise ValueError(f"domain: need 0 <= obstacles_min <= obstacles_max, got {low} and "
+                         f"{high}")
+
+
+def _sizes(c) -> None:
+    """``obstacle_size`` and ``obstacle_height``: [min, max] with 0 < min <= max."""
+    for key in ("obstacle_size", "obstacle_height"):
+        pair = getattr(c, key)
+        if len(pair) != 2 or not 0 < pair[0] <= pair[1]:
+            raise ValueError(f"domain.{key} must be [min, max] with 0 < min <= max")
+
+
+def _mobile(c) -> None:
+    """The settings both mobile domains share."""
+    _sizes(c)
+    if c.obstacles < 0 or c.ik_restarts < 1 or c.pregrasp_offset < 0:
+        raise ValueError("domain: need obstacles >= 0, ik_restarts >= 1 and "
+                         "pregrasp_offset >= 0")
 
 
 #: domain name -> schema (the names of pipeline.domains.DOMAINS)

@@ -64,6 +64,14 @@ class PlannerSettings:
                              f"{self.collision!r}")
         if self.range < 0 or self.shortcut_attempts < 0:
             raise ValueError("planner.range and planner.shortcut_attempts must be >= 0")
+        if self.trajopt_waypoints < 3:
+            raise ValueError("planner.trajopt_waypoints must be >= 3, got "
+                             f"{self.trajopt_waypoints}")
+        if (self.trajopt_margin < 0 or self.trajopt_penalty <= 0
+                or self.trajopt_penalty_rounds < 1 or self.trajopt_iterations < 1
+                or self.trajopt_trust_radius <= 0):
+            raise ValueError("planner.trajopt_*: margin must be >= 0, penalty and "
+                             "trust_radius > 0, penalty_rounds and iterations >= 1")
 
 
 def planner_class(name: str):

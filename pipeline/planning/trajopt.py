@@ -234,15 +234,9 @@ QUERY_BUFFER = 0.03
 
 
 def options(settings) -> TrajOptOptions:
-    """TrajOpt's options from the ``trajopt_*`` planner settings (ValueError naming a bad
-    one)."""
+    """TrajOpt's options from the ``trajopt_*`` planner settings (checked by
+    PlannerSettings)."""
     s = settings
-    if s.trajopt_waypoints < 3:
-        raise ValueError(f"planner.trajopt_waypoints must be >= 3, got {s.trajopt_waypoints}")
-    if (s.trajopt_margin < 0 or s.trajopt_penalty <= 0 or s.trajopt_penalty_rounds < 1
-            or s.trajopt_iterations < 1 or s.trajopt_trust_radius <= 0):
-        raise ValueError("planner.trajopt_*: margin must be >= 0, penalty and "
-                         "trust_radius > 0, penalty_rounds and iterations >= 1")
     return TrajOptOptions(waypoints=s.trajopt_waypoints, margin=s.trajopt_margin,
                           penalty=s.trajopt_penalty, penalty_rounds=s.trajopt_penalty_rounds,
                           iterations=s.trajopt_iterations, trust_radius=s.trajopt_trust_radius)

@@ -14,7 +14,6 @@ from pipeline.domains.ik import IKOutcome, solve_ik
 from pipeline.domains.mobile_world import (
     OBSTACLE_RGBA,
     TablePlacer,
-    check_mobile_config,
     render_two_panels,
 )
 from pipeline.domains.pick_place import raw
@@ -72,23 +71,8 @@ class PickPlaceDomain(Domain):
 
     def __init__(self, config: PickPlaceConfig, planner):
         super().__init__(config, planner)
-        c = config
-        check_mobile_config(c)
-        if not c.rod_lengths or any(not 0.1 <= v <= 1.2 for v in c.rod_lengths):
-            raise ValueError("domain.rod_lengths: need one or more lengths in [0.1, 1.2] m")
-        if not 0.6 <= c.door_width <= ROOMS[3] - ROOMS[2] - 0.2:
-            raise ValueError("domain.door_width must be in [0.6, 3.0] m (the platform is "
-                             "0.5 m wide)")
-        if not (c.reach_radius > 0 and c.psi_scale > 0 and c.arm_weight >= 0
-                and c.base_max_checks >= 1 and c.base_resolution > 0):
-            raise ValueError("domain: need reach_radius, psi_scale, base_resolution > 0, "
-                             "arm_weight >= 0 and base_max_checks >= 1")
-        if c.step_order not in plan_steps.ORDERS:
-            raise ValueError(f"domain.step_order must be one of {', '.join(plan_steps.ORDERS)}, "
-                             f"got {c.step_order!r}")
+        c = config  # its values were checked by the schema (PickPlaceConfig)
         plan_steps.check_order(plan_steps.ORDERS[c.step_order])
-        if min(c.raw_grasps, c.raw_placements, c.raw_base_samples) < 1:
-            raise ValueError("domain.raw_*: need at least 1 of each")
         self.grasps = rod_grasps()
         self._grasp_index = {tuple(np.round(g.features, 9)): k
                              for k, g in enumerate(self.grasps)}
