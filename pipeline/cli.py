@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +14,7 @@ import box_core
 from box_core import synthetic
 from box_core.io import MatrixFile, load_matrix
 from pipeline.store import INSTANCE_SEED, INSTANCE_SPEC, THETA, ScoreStore, StoreError, result_key
-from pipeline.tables import summary_table
+from pipeline.tables import stdout_console, summary_table
 
 app = typer.Typer(
     help="Score-space constraint selection (BOX). Inspect score stores made by "
@@ -23,8 +22,7 @@ app = typer.Typer(
     "(evaluate, demo).",
     no_args_is_help=True,
 )
-# Off a terminal (pipes, CI logs) rich assumes 80 columns and wraps the table badly.
-out = Console(width=None if sys.stdout.isatty() else 132)
+out = stdout_console()
 err = Console(stderr=True)
 
 #: Exit code for bad input (missing file or array, wrong shapes, bad values).

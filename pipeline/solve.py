@@ -131,6 +131,12 @@ def _raw(domain, inst, seed: int, d: float) -> dict:
             "best_path": raw.plan.path if ok else None}
 
 
+#: Columns of :func:`live_table` (by position) left out at narrow widths, in this order:
+#: best score, tries, median, the interval of the mean; method, solved, mean and the
+#: speed-up over RAWPLANNER with its interval always stay.
+LIVE_DROP = {6: 1, 5: 2, 4: 3, 3: 4}
+
+
 def live_table(records: list[dict], names: list[str], level: float = 0.95):
     """Header and rows: live time to first feasible per method and speed-up over RAWPLANNER."""
     times = {n: np.array([r["selectors"][n]["first_feasible_time"] for r in records],
@@ -168,9 +174,8 @@ def _jsonable(record: dict) -> dict:
 def solve(ctx: StageContext, out_dir: Path) -> dict:
     """Run stage solve for ``ctx``'s run (its store must exist); write results into
     ``out_dir``."""
-    from rich.table import Table
-
     from pipeline.execution import Task, run_tasks
+    from pipeline.tables import Column, FittedTable
     from pipeline.worker import domain_for
 
     settings = ctx.config["solve"]
@@ -216,13 +221,11 @@ def solve(ctx: StageContext, out_dir: Path) -> dict:
         _save_best(domain, instances[k], rec, theta, plans / f"instance{k:03d}")
     methods = [*names, RAWPLANNER]
     header, rows_ = live_table(ordered, methods)
-    table = Table(title=f"live solving: {len(seeds)} fresh instances, budget {max_eval} calls"
-                        + (f" / {settings['max_seconds']} s" if settings["max_seconds"] else ""))
-    for col in header:
-        table.add_column(col)
-    for row in rows_:
-        table.add_row(*row)
-    ctx.console.print(table)
+    ctx.console.print(FittedTable(
+        [Column(h, "left" if i == 0 else "right", drop=LIVE_DROP.get(i), wrap=i == 7)
+         for i, h in enumerate(header)], rows_,
+        title=f"live solving: {len(seeds)} fresh instances, budget {max_eval} calls"
+              + (f" / {settings['max_seconds']} s" if settings["max_seconds"] else "")))
     doc = {"store": str(store.path), "config_hash": store.attrs["config_hash"],
            "training_rows": int(rows.size), "failure_value": d, "settings": settings,
            "instances": instances, "records": [_jsonable(r) for r in ordered],

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 from rich.console import Console
-from rich.table import Table
 
 from pipeline import integrity
 from pipeline.environment import describe, difference
 from pipeline.integrity import Damage
 from pipeline.provenance import WHY
 from pipeline.store import BLOCK_DIMS, ScoreStore, StoreError, StoreLock
+from pipeline.tables import Column, FittedTable
 
 STAGE_GROUPS = {"instances": "instances", "raw": "raw", "constraints": "constraints",
                 "scores": "scores", "evaluate": "evaluation"}
@@ -112,15 +112,13 @@ def _print_environments(found: list[dict], layout: int, console: Console) -> Non
             console.print(f"environments: not recorded (layout {layout}; recorded from layout 3 "
                           "on, by the next run that writes to the store)", highlight=False)
         return
-    table = Table(title="environments that computed the entries")
-    for col in ("#", "raw", "scores", "environment"):
-        table.add_column(col)
-    for e in found:
-        what = describe(e["environment"]) if e["environment"] else \
-            "not recorded (computed before layout 3)"
-        table.add_row(str(e["index"]), str(e["entries"].get("raw", 0)),
-                      str(e["entries"].get("scores", 0)), what)
-    console.print(table)
+    rows = [[str(e["index"]), str(e["entries"].get("raw", 0)),
+             str(e["entries"].get("scores", 0)),
+             describe(e["environment"]) if e["environment"] else
+             "not recorded (computed before layout 3)"] for e in found]
+    console.print(FittedTable([Column("#"), Column("raw"), Column("scores"),
+                               Column("environment", "left", wrap=True)], rows,
+                              title="environments that computed the entries"))
     known = [e["environment"] for e in found if e["environment"]]
     if len(found) > 1:
         change = f" ({difference(known[0], known[1])})" if len(known) > 1 else ""
@@ -133,9 +131,7 @@ def print_status(path, console: Console) -> dict:
     console.print(f"store {report['path']}  config {report['config_hash']}  created "
                   f"{report['created']}  layout {report['layout_version']}", highlight=False)
     console.print(f"running: {report['running'] or 'no'}", highlight=False)
-    stages = Table(title="stages")
-    for col in ("stage", "state", "entries done", "finished at"):
-        stages.add_column(col)
+    stages = []
     for stage, entry in report["stages"].items():
         progress = f"{entry['done']}/{entry['total']}" if "total" in entry else "-"
         if entry["finished"]:
@@ -145,17 +141,22 @@ def print_status(path, console: Console) -> dict:
             state = "[yellow]partial"
         else:
             state = "not started"
-        stages.add_row(stage, state, progress, entry["finished"] or "-")
-    console.print(stages)
-    arrays = Table(title="arrays")
-    for col in ("array", "dims", "shape", "chunks written", "corrupted", "missing"):
-        arrays.add_column(col)
+        stages.append([stage, state, progress, entry["finished"] or "-"])
+    console.print(FittedTable([Column("stage", "left"), Column("state", "left"),
+                               Column("entries done"), Column("finished at", "left", drop=1)],
+                              stages, title="stages"))
+    arrays = []
     for a in report["arrays"]:
         bad = f"[red]{a['corrupted']}" if a["corrupted"] else "0"
         gone = f"[red]{a['missing']}" if a["missing"] else "0"
-        arrays.add_row(a["array"], ", ".join(a["dims"]), " x ".join(map(str, a["shape"])),
-                       f"{a['chunks_written']}/{a['chunks']}", bad, gone)
-    console.print(arrays)
+        arrays.append([a["array"], ", ".join(a["dims"]), " x ".join(map(str, a["shape"])),
+                       f"{a['chunks_written']}/{a['chunks']}", bad, gone])
+    # integrity is what status is for: the chunk counts stay, the layout goes first
+    console.print(FittedTable([Column("array", "left"),
+                               Column("dims", "left", drop=2, wrap=True),
+                               Column("shape", drop=1), Column("chunks written"),
+                               Column("corrupted"), Column("missing")], arrays,
+                              title="arrays"))
     _print_environments(report["environments"], report["layout_version"], console)
     if report["damaged"]:
         console.print(f"[red]corrupted chunks found: {damaged(report)}; re-run the same "
