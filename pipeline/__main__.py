@@ -26,9 +26,10 @@ def main(cfg) -> None:
     from pipeline.execution import TaskFailed
     from pipeline.stages import run_pipeline
     from pipeline.store import StoreDamaged, StoreError
+    from pipeline.tables import stdout_console
     from pipeline.validation import validate
 
-    console = Console(width=None if sys.stdout.isatty() else 132)
+    console = stdout_console()
     err = Console(stderr=True)
     try:
         validate(cfg)  # every key, whatever the stage, before anything is opened or written
@@ -101,12 +102,19 @@ def _one_line(exc: Exception) -> str:
 
 def run() -> None:
     """The ``box-pipeline`` console script and ``python -m pipeline``: the config checked in
-    one line before Hydra starts (a refused command writes nothing), then the run."""
+    one line before Hydra starts (a refused command writes nothing), then the run.  Shell
+    completion (``-sc``) is Hydra's, offering only real choices (``pipeline.completion``)."""
+    from pipeline import completion
+
     problem = config_error(sys.argv[1:])
     if problem:
         Console(stderr=True).print(f"[bold red]error:[/] {escape(problem)}", highlight=False,
                                    soft_wrap=True)
         sys.exit(BAD_INPUT)
+    if completion.is_query(sys.argv[1:]):
+        with completion.filtered_answer():  # Hydra's answer less the schema entries
+            main()
+        return
     main()
 
 

@@ -140,3 +140,44 @@ def test_pipeline_help_names_the_command_and_lists_only_real_choices(command):
     assert "domain: grasp_arm, grasp_base, pick_place, planar" in res.stdout
     assert "planner: noop, rrt_connect, trajopt" in res.stdout
     assert "_schema" not in res.stdout and "powered by Hydra" not in res.stdout
+
+
+def test_box_pipeline_bash_completion_offers_real_choices_and_keys(tmp_path):
+    """Hydra's bash completion installed as a user installs it (``eval`` of ``box-pipeline
+    -sc install=bash``), then asked as bash asks it: the real options of a group (no
+    schema entries) and the config's keys."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from tests import pipeline_runs as pr
+
+    script = tmp_path / "complete.sh"
+    script.write_text("""
+eval "$(box-pipeline -sc install=bash)"
+complete -p box-pipeline
+ask() {
+  COMP_LINE="$1"; COMP_POINT=${#1}; local w=($1)
+  COMP_CWORD=$(( ${#w[@]} - 1 )); [[ "$1" == *" " ]] && COMP_CWORD=${#w[@]}
+  COMPREPLY=(); hydra_bash_completion; echo "${COMPREPLY[*]}"
+}
+ask "box-pipeline domain="
+ask "box-pipeline planner="
+ask "box-pipeline "
+ask "box-pipeline domain=planar domain.rob"
+""")
+    env = {**pr.env(), "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    res = subprocess.run(["bash", str(script)], capture_output=True, text=True, env=env,
+                         cwd=tmp_path, check=True, timeout=600)
+    registered, domains, planners, top, keys = res.stdout.splitlines()
+    assert registered.endswith("-F hydra_bash_completion box-pipeline")
+    assert domains.split() == [f"domain={d}" for d in ("grasp_arm", "grasp_base", "pick_place",
+                                                        "planar")]
+    assert planners.split() == ["planner=noop", "planner=rrt_connect", "planner=trajopt"]
+    assert {"stage=", "domain=", "store.", "cluster.", "progress="} <= set(top.split())
+    assert keys == "domain.robot_radius="
+    fish = subprocess.run(["box-pipeline", "-sc", "query=fish"], capture_output=True,
+                          text=True, env={**env, "COMP_LINE": "box-pipeline cluster="},
+                          cwd=tmp_path, check=True, timeout=600)
+    assert fish.stdout.splitlines() == ["cluster=address", "cluster=local", "cluster=slurm"]
