@@ -7,7 +7,7 @@ leave-one-out evaluation of the pipeline's selectors under tracemalloc (which se
 allocations) and prints the measured peak beside
 :func:`pipeline.validation.evaluation_bytes`.  The estimate should be at or above the
 measurement (ratio >= 1) without being far above it: it refuses runs that cannot fit,
-not runs that can.  Also prints the percentile-bootstrap interval's cost on 1000 rows.
+not runs that can.  Also prints the bootstrap intervals' cost on 1000 rows.
 """
 
 from __future__ import annotations
