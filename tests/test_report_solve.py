@@ -67,14 +67,14 @@ def test_evaluate_hides_each_instance_s_own_constraints_unless_told_not_to(made,
 def test_report_writes_every_figure_and_a_self_contained_page(made):
     _, report = made
     for stem in ("fig3_first_feasible", "fig4_score_vs_time", "fig_learning_curve",
-                 "fig_c_sensitivity"):
+                 "fig_c_sensitivity", "fig_time_distribution", "fig_ratio_to_box"):
         for fmt in ("png", "svg"):
             assert (report / f"{stem}.{fmt}").stat().st_size > 5000
     renders = sorted((report / "renders").glob("*.png"))
     assert len(renders) == 3
     page = (report / "report.html").read_text()
     sources = re.findall(r'src="([^"]*)"', page)
-    assert len(sources) == 4 + 3 and all(s.startswith("data:image/png;base64,") for s in sources)
+    assert len(sources) == 6 + 3 and all(s.startswith("data:image/png;base64,") for s in sources)
     md = (report / "report.md").read_text()
     for stem in ("fig3_first_feasible.png", "fig4_score_vs_time.png", "renders/store0-"):
         assert stem in md

@@ -1,5 +1,7 @@
-"""Stage ``report``: figures like the paper's, a learning curve, BOX's sensitivity to C,
-renders of BOX's first choice, as report.md and a self-contained report.html."""
+"""Stage ``report``: a sentence per store stating how BOX compares with its strongest
+competitor, the plot of every ratio to BOX behind it, figures like the paper's, the
+distribution of times to a first feasible plan, a learning curve, BOX's sensitivity to C and
+renders of the first feasible plan BOX finds, as report.md and a self-contained report.html."""
 
 from __future__ import annotations
 
@@ -8,13 +10,18 @@ import math
 from dataclasses import asdict
 from pathlib import Path
 
-import numpy as np
-
 import box_core
-from box_core.stats import INTERVAL_NOTE
+from box_core.stats import (
+    INTERVAL_METHOD,
+    INTERVAL_NOTE,
+    MEAN_INTERVAL_METHOD,
+    RATIO_INTERVAL_METHOD,
+)
 from pipeline.report import figures
+from pipeline.report.conclusions import conclude
 from pipeline.report.data import StoreResults, load, tell_apart
 from pipeline.report.document import Document
+from pipeline.report.renders import render_first_feasible
 
 __all__ = ["StoreResults", "fmt", "load", "make_report", "summary_rows"]
 
@@ -76,29 +83,9 @@ def _matrix(res: StoreResults) -> dict:
             "forbidden": res.forbidden}
 
 
-def _render_first_choices(res: StoreResults, count: int, out_dir: Path, tag: str):
-    """Re-plan BOX's first choice on ``count`` instances and render it: (path, caption)."""
-    from pipeline.worker import domain_for, entry_seed
-
-    if count <= 0 or "box" not in res.order:
-        return []
-    domain = domain_for(res.spec)
-    rows = np.flatnonzero(res.eligible)[:count]
-    out = []
-    for i in rows:
-        j = int(res.order["box"][i, 0])
-        spec = json.loads(str(res.instance_specs[i]))
-        plan = domain.plan(domain.check_instance(spec), res.theta[j],
-                           seed=entry_seed(res.seed, int(res.instance_seeds[i]), j))
-        path = domain.render(spec, plan, out_dir / f"{tag}-instance{i}-constraint{j}.png",
-                             constraint=res.theta[j])
-        verdict = (f"feasible, path length {plan.length:.3f}" if plan.feasible
-                   else f"infeasible: {plan.status.name.lower()}")
-        agrees = "as in D" if plan.feasible == bool(res.feasible[i, j]) else "DIFFERS FROM D"
-        out.append((path, f"{res.label}, instance {i}: BOX's first choice is constraint {j} "
-                          f"({verdict}, {agrees}); BOX found a feasible one at try "
-                          f"{int(np.argmax(res.feasible[i, res.order['box'][i]])) + 1}"))
-    return out
+def _jsonable(d: dict) -> dict:
+    """NaN as null, as the stored summary writes it (strict JSON has no NaN)."""
+    return {k: None if isinstance(v, float) and math.isnan(v) else v for k, v in d.items()}
 
 
 def make_report(paths, out_dir: Path, settings: dict, say=print) -> dict[str, Path]:
@@ -114,6 +101,15 @@ def make_report(paths, out_dir: Path, settings: dict, say=print) -> dict[str, Pa
     formats = settings["formats"]
     doc = Document("BOX: constraint selection in score space")
     written = {}
+    doc.heading("Result")
+    conclusions = [conclude(res) for res in results]
+    for conclusion in conclusions:
+        doc.lead(conclusion.sentence)
+    written["ratios"] = figures.ratio_forest(results, out_dir, formats)["png"]
+    doc.image(written["ratios"], "Each selector's mean time to first feasible plan over "
+              "BOX's, on the instances both solved (leave-one-out): right of the line at 1 "
+              f"BOX is faster; bars: 95 % {RATIO_INTERVAL_METHOD} intervals; hollow: oracles, "
+              "which see the held-out truth.")
     doc.text(f"{len(results)} store(s). Times are seconds of planning (plus each selector's "
              "own compute time in the leave-one-out tables) on the machine that computed the "
              f"store. 95 % intervals. {INTERVAL_NOTE}")
@@ -130,9 +126,16 @@ def make_report(paths, out_dir: Path, settings: dict, say=print) -> dict[str, Pa
         doc.heading(f"{res.label} ({res.shape[0]} x {res.shape[1]})", 3)
         doc.text(leakage_statement(res))
         doc.table(*summary_rows(res))
+    doc.text(f"Intervals in these tables: 95 % {INTERVAL_METHOD}.")
     written["fig3"] = figures.first_feasible(results, out_dir, formats)["png"]
     doc.image(written["fig3"], "Fig. 3 analogue: mean time to first feasible plan per "
-              "selector, leave-one-out, log scale, bars: 95 % interval.")
+              f"selector, leave-one-out, log scale, bars: 95 % {MEAN_INTERVAL_METHOD} "
+              "interval.")
+    written["distribution"] = figures.time_distributions(results, out_dir, formats)["png"]
+    doc.image(written["distribution"], "Distribution of the time to first feasible plan: "
+              "the share of instances with a feasible constraint that each selector has "
+              "solved by each time (log scale), as OMPL's Planner Arena shows planners; "
+              "dashed: oracles.")
 
     doc.heading("Best score versus time")
     written["fig4"] = figures.score_versus_time(results, out_dir, formats)["png"]
@@ -186,18 +189,22 @@ def make_report(paths, out_dir: Path, settings: dict, say=print) -> dict[str, Pa
     doc.image(written["c"], "BOX's mean time to first feasible plan versus C (leave-one-out) "
               "and the nested-CV tuned result.")
 
-    doc.heading("BOX's first choice on a few instances")
+    doc.heading("The first feasible plan BOX finds")
+    doc.text("On the first instances (in row order) where BOX's leave-one-out order reaches "
+             "a feasible constraint: that constraint planned again with the entry's own seed "
+             "and drawn, above a strip of BOX's tries on the instance.")
     render_dir = out_dir / "renders"
     render_dir.mkdir(exist_ok=True)
     for k, res in enumerate(results):
-        for path, caption in _render_first_choices(res, settings["renders"], render_dir,
+        for path, caption in render_first_feasible(res, settings["renders"], render_dir,
                                                    f"store{k}"):
             doc.image(path, caption)
     written["md"], written["html"] = doc.write(out_dir)
-    numbers = {str(res.path): {"summary": res.summary,
+    numbers = {str(res.path): {"conclusion": _jsonable(asdict(conclusion)), "summary": res.summary,
                                "learning_curve": [asdict(p) for p in curve],
                                "c_tuning": tuning.summary()}
-               for res, curve, tuning in zip(results, curves, tunings, strict=True)}
+               for res, conclusion, curve, tuning
+               in zip(results, conclusions, curves, tunings, strict=True)}
     written["json"] = out_dir / "report.json"
     written["json"].write_text(json.dumps(numbers, indent=1, default=float))
     say(f"report: {written['html']}")

@@ -21,6 +21,10 @@ class Document:
     def text(self, text: str) -> None:
         self.blocks.append(("p", text))
 
+    def lead(self, text: str) -> None:
+        """A paragraph that states a result: bold, so it is read first."""
+        self.blocks.append(("lead", text))
+
     def table(self, header: list[str], rows: list[list[str]]) -> None:
         self.blocks.append(("table", header, rows))
 
@@ -36,6 +40,8 @@ class Document:
                 out += ["#" * block[1] + " " + block[2], ""]
             elif kind == "p":
                 out += [block[1], ""]
+            elif kind == "lead":
+                out += [f"**{block[1]}**", ""]
             elif kind == "table":
                 header, rows = block[1], block[2]
                 out.append("| " + " | ".join(header) + " |")
@@ -55,6 +61,8 @@ class Document:
                 body.append(f"<h{block[1]}>{html.escape(block[2])}</h{block[1]}>")
             elif kind == "p":
                 body.append(f"<p>{html.escape(block[1])}</p>")
+            elif kind == "lead":
+                body.append(f'<p class="lead">{html.escape(block[1])}</p>')
             elif kind == "table":
                 head = "".join(f"<th>{html.escape(c)}</th>" for c in block[1])
                 rows = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row)
@@ -88,4 +96,5 @@ td:first-child, th:first-child { text-align: left; }
 figure { margin: 1em 0; display: inline-block; vertical-align: top; }
 img { max-width: 100%; border: 1px solid #eee; }
 figcaption { font-size: 0.85em; color: #555; max-width: 560px; }
+p.lead { font-size: 1.15em; font-weight: 600; }
 """

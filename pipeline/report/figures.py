@@ -14,7 +14,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from box_core import curve_summary
-from box_core.stats import mean_ci_columns
+from box_core.stats import RATIO_INTERVAL_METHOD, mean_ci_columns
 
 #: How selectors are named and coloured in every figure and table.
 LABELS = {"box": "BOX", "eips": "EIPS", "static": "STATIC", "rand": "RAND", "doo": "DOO",
@@ -31,6 +31,9 @@ ORACLES = ("oracle", "fastest")
 #: value to ORACLE's optimum (scores are negative lengths, so "95 % of the optimal score"
 #: is read as 95 % of the gap closed).
 OPTIMAL_SHARE = 0.95
+
+#: Times below this (seconds) are drawn at it on a log time axis.
+_LEAST_TIME = 1e-6
 
 
 def label(name: str) -> str:
@@ -191,3 +194,76 @@ def c_sensitivity(results, tunings, out_dir: Path, formats) -> dict[str, Path]:
     fig.suptitle("BOX's sensitivity to C (planning time only, bars: 95 % interval)")
     fig.tight_layout()
     return save(fig, out_dir, "fig_c_sensitivity", formats)
+
+
+def time_distributions(results, out_dir: Path, formats) -> dict[str, Path]:
+    """Empirical distribution of the time to first feasible plan per selector (as OMPL's
+    Planner Arena shows planners): the share of instances with a feasible constraint that a
+    selector has solved by each time, on a log time axis.  A curve that ends below 1 did not
+    solve every instance within its tries; oracles are dashed."""
+    fig, axes = _panels(len(results), height=4.4)
+    for ax, res in zip(axes, results, strict=True):
+        rows = int(res.eligible.sum())
+        for name in res.selectors:
+            times = res.first_feasible_time.get(name)
+            if times is None or rows == 0:
+                continue
+            solved = np.sort(times[res.eligible][~np.isnan(times[res.eligible])])
+            if solved.size == 0:
+                continue
+            solved = np.maximum(solved, _LEAST_TIME)  # a log axis has no 0
+            share = np.arange(1, solved.size + 1) / rows
+            oracle = name in ORACLES
+            ax.step(np.concatenate([[solved[0]], solved]), np.concatenate([[0.0], share]),
+                    where="post", color=COLOURS.get(name, "k"), lw=1.2 if oracle else 1.7,
+                    ls="--" if oracle else "-", label=label(name) + (" (oracle)" if oracle
+                                                                     else ""))
+        ax.set_xscale("log")
+        ax.set_ylim(0, 1.02)
+        ax.set_xlabel("time to first feasible plan (s, log scale)")
+        ax.set_ylabel("share of instances solved")
+        ax.set_title(f"{res.label}\n{rows} instances with a feasible constraint", fontsize=10)
+        ax.grid(which="both", alpha=0.3)
+        ax.legend(fontsize=8, loc="lower right")
+    fig.suptitle("Distribution of the time to first feasible plan (leave-one-out)")
+    fig.tight_layout()
+    return save(fig, out_dir, "fig_time_distribution", formats)
+
+
+def ratio_forest(results, out_dir: Path, formats) -> dict[str, Path]:
+    """Each selector's mean time over BOX's on the instances both solved, with its stored
+    interval (a forest plot): right of the line at 1 BOX is faster.  Oracles are hollow."""
+    most = max((len(res.summary["selectors"]) for res in results), default=1)
+    fig, axes = _panels(len(results), width=6.5, height=1.2 + 0.32 * most)
+    for ax, res in zip(axes, results, strict=True):
+        ref = res.summary["reference"]
+        lines = [line for line in res.summary["selectors"]  # a log axis has no 0
+                 if line["name"] != ref and (line.get("speedup") or 0) > 0]
+        lines.sort(key=lambda line: line["speedup"], reverse=True)
+        for y, line in enumerate(lines):
+            ratio = line["speedup"]
+            low = ratio if line["speedup_low"] is None else line["speedup_low"]
+            high = ratio if line["speedup_high"] is None else line["speedup_high"]
+            colour = COLOURS.get(line["name"], "k")
+            oracle = line["name"] in ORACLES
+            # a BCa interval may leave out its own estimate: no bar on that side then
+            ax.errorbar(ratio, y, xerr=[[max(ratio - low, 0)], [max(high - ratio, 0)]], fmt="o",
+                        color=colour, mfc="white" if oracle else colour, capsize=3, lw=1.4)
+            ax.annotate(f"{ratio:.3g} [{low:.3g}, {high:.3g}]", (1.02, y),
+                        xycoords=ax.get_yaxis_transform(), va="center", fontsize=8)
+        ax.axvline(1.0, color="black", lw=1)
+        ax.set_yticks(range(len(lines)),
+                      [label(line["name"]) + (" (oracle)" if line["name"] in ORACLES else "")
+                       for line in lines])
+        ax.set_ylim(-0.6, max(len(lines), 1) - 0.4)
+        ax.set_xscale("log")
+        ax.xaxis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        ax.set_xlabel(f"mean time / mean time of {label(ref)}  (> 1: {label(ref)} is faster)")
+        ax.set_title(res.label, fontsize=10)
+        ax.grid(axis="x", which="both", alpha=0.3)
+    fig.suptitle("Ratio of mean time to first feasible plan to BOX's "
+                 f"(bars: 95 % {RATIO_INTERVAL_METHOD} interval)")
+    fig.tight_layout()
+    return save(fig, out_dir, "fig_ratio_to_box", formats)
