@@ -53,16 +53,9 @@ if ip netns list 2>/dev/null | grep -qw "$NS" && [ -s /run/slurmctld.pid ] \
   exit 0  # already running
 fi
 
-if ! command -v slurmctld >/dev/null || ! command -v slurmd >/dev/null \
-   || ! command -v sbatch >/dev/null || ! command -v munged >/dev/null \
-   || ! command -v ip >/dev/null || ! command -v nsenter >/dev/null; then
-  command -v apt-get >/dev/null || cannot "no apt-get to install Debian's SLURM packages"
-  export DEBIAN_FRONTEND=noninteractive
-  apt-get update -qq >/dev/null || cannot "apt-get update failed"
-  apt-get install -y -qq --no-install-recommends slurmctld slurmd slurm-client munge \
-    iproute2 util-linux >/dev/null \
-    || cannot "apt-get install slurmctld slurmd slurm-client munge iproute2 failed"
-fi
+# Debian's SLURM, munge, ip and nsenter (nothing is installed when they are all there)
+installed=$("$(dirname "$0")/install_debian.sh" slurm 2>&1) \
+  || cannot "$(printf '%s\n' "$installed" | tail -n 1)"
 
 stop  # a half-started earlier attempt
 ip netns add "$NS" || cannot "ip netns add failed (no network namespaces here)"
