@@ -3,7 +3,7 @@ important columns (and say so) instead of cutting names and numbers ("selec…")
 
 from __future__ import annotations
 
-import os
+import io
 import re
 import shutil
 import subprocess
@@ -33,7 +33,7 @@ def matrix_file(tmp_path_factory):
 
 
 def _printed(renderable, width: int) -> str:
-    console = Console(width=width, record=True, file=open(os.devnull, "w"))  # noqa: SIM115
+    console = Console(width=width, record=True, file=io.StringIO())
     console.print(renderable)
     return console.export_text()
 
