@@ -3,11 +3,20 @@
 * Local stores: ``flock`` on ``<resolved store>.lock``; the kernel releases it when the
   holder dies, so a killed run never keeps it (unlike POSIX record locks, closing another
   descriptor of the file does not drop it).  The lock sits next to the store: inside, zarr
-  would see a foreign object.
+  would see a foreign object.  A lock is only held on the file that is at that path: an
+  acquirer checks after locking that the file it locked is still the one there (else it
+  locks the new one), and the holder removes the file when it releases it, so removing the
+  file by hand cannot let a second run in unnoticed.
 * Object stores: a lease object ``<store>.lock`` holding its owner (a random token, host,
   pid) and a heartbeat that a thread renews; it is created with a conditional put (only if
   absent), and a lease whose heartbeat is older than :data:`LEASE_SECONDS`, or whose holder
   ran on this host and is gone, is taken over.
+
+Fencing: a writer calls :meth:`StoreLock.check` before each write (the store does, in
+``ScoreStore.write_block`` and when it records a stage).  A holder whose lock file was
+removed takes it again unless another run holds it by then; a holder whose lease was taken
+over (it was paused, or its heartbeat failed) stops.  Either way a run that is no longer
+the only writer stops before writing, with one line.
 """
 
 from __future__ import annotations
@@ -49,19 +58,49 @@ class FileLock:
         self._fd: int | None = None
 
     def acquire(self) -> None:
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            holder = os.read(fd, 4096).decode(errors="replace").strip() or "another process"
-            os.close(fd)
-            raise _in_use(self.store, holder) from None
+        for _ in range(100):
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                holder = os.read(fd, 4096).decode(errors="replace").strip() or "another process"
+                os.close(fd)
+                raise _in_use(self.store, holder) from None
+            if self._is_at_path(fd):
+                break
+            os.close(fd)  # the file was removed after we opened it: lock the one there now
+        else:
+            raise _in_use(self.store, "its lock file keeps being replaced")
         os.ftruncate(fd, 0)
         os.write(fd, f"pid {os.getpid()} on {socket.gethostname()} since {_now()}".encode())
         self._fd = fd
 
+    def _is_at_path(self, fd: int) -> bool:
+        """Whether the open file ``fd`` is the file at the lock's path."""
+        try:
+            there = os.stat(self.path)
+        except FileNotFoundError:
+            return False
+        mine = os.fstat(fd)
+        return (there.st_dev, there.st_ino) == (mine.st_dev, mine.st_ino)
+
+    def check(self) -> None:
+        """Fencing: the lock file was removed or replaced since we locked it?  Take the
+        file there again, or stop (LockError) when another run holds it."""
+        if self._fd is None or self._is_at_path(self._fd):
+            return
+        os.close(self._fd)
+        self._fd = None
+        try:
+            self.acquire()
+        except LockError:
+            raise _lost(self.store, "its lock file was removed and another run locked it "
+                                    "since") from None
+
     def release(self) -> None:
         if self._fd is not None:
+            if self._is_at_path(self._fd):
+                os.unlink(self.path)  # while locked: an acquirer that opened it retries
             os.close(self._fd)  # closing drops the lock
             self._fd = None
 
@@ -92,6 +131,7 @@ class LeaseLock:
         self.since = _now()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._lost: str | None = None  # why we no longer hold the lease, once we know
 
     def _lease(self) -> bytes:
         return json.dumps({"owner": self.token, "host": socket.gethostname(),
@@ -146,10 +186,29 @@ class LeaseLock:
 
     def _beat(self) -> None:
         while not self._stop.wait(self.lease_seconds / 4):
-            lease = self._read()
+            try:
+                lease = self._read()
+                if lease is None or lease.get("owner") != self.token:
+                    self._lost = "its lease was taken over (this run was presumed dead)"
+                    return  # stop touching it; check() stops the writer
+                self.fs.pipe_file(self.key, self._lease())
+            except Exception as exc:  # noqa: BLE001 (any failure to renew: fence the writer)
+                self._lost = f"renewing its lease failed ({type(exc).__name__}: {exc})"
+                return
+
+    def check(self) -> None:
+        """Fencing: stop (LockError) unless the lease is still ours (one read per call)."""
+        if self._lost is None:
+            try:
+                lease = self._read()
+            except Exception as exc:  # noqa: BLE001
+                lease, why = None, f"its lease cannot be read ({type(exc).__name__}: {exc})"
+            else:
+                why = "its lease was taken over (this run was presumed dead)"
             if lease is None or lease.get("owner") != self.token:
-                return  # taken over (we were presumed dead): stop touching it
-            self.fs.pipe_file(self.key, self._lease())
+                self._lost = why
+        if self._lost is not None:
+            raise _lost(self.store, self._lost)
 
     def release(self) -> None:
         self._stop.set()
@@ -165,6 +224,12 @@ class LeaseLock:
         if lease is None or lease.get("owner") == self.token or self._stale(lease):
             return None
         return _describe(lease)
+
+
+def _lost(location: Location, why: str) -> LockError:
+    return LockError(f"store {location}: this run is no longer its only writer: {why}; it "
+                     "stops before writing again (finished blocks are kept; re-run the same "
+                     "command to resume once the other run ends)")
 
 
 def _describe(lease: dict) -> str:
@@ -191,6 +256,10 @@ class StoreLock:
 
     def release(self) -> None:
         self._impl.release()
+
+    def check(self) -> None:
+        """Fencing: LockError when this holder is no longer the only writer."""
+        self._impl.check()
 
     def held_by_other(self) -> str | None:
         return self._impl.held_by_other()

@@ -139,10 +139,11 @@ class Run:
             if local.exists() and (not local.is_dir() or any(local.iterdir())):
                 check_is_ours(self.location)  # refuse before touching anything near it
             local.parent.mkdir(parents=True, exist_ok=True)
-        self._stack.enter_context(StoreLock(self.location))
+        lock = self._stack.enter_context(StoreLock(self.location))
         self.store = ScoreStore.prepare(
             self.location, self.identity, self.recorded_config(),
             overwrite=self.cfg.store.mode is configs.StoreMode.overwrite)
+        self.store.fence = lock.check
         if self.store.layout_version < LAYOUT_VERSION:
             from pipeline.migrate import migrate
 

@@ -211,6 +211,8 @@ class ScoreStore:
         self.root = zarr.open_group(store=self.zstore, mode="r" if read_only else "r+",
                                     use_consolidated=False)
         self._arrays: dict[str, zarr.Array] = {}
+        #: called before each block write and stage record: the run's lock check (fencing)
+        self.fence = lambda: None
 
     # -- opening ---------------------------------------------------------------------------
     @classmethod
@@ -264,6 +266,7 @@ class ScoreStore:
         return self.attrs.get("stages", {}).get(stage)
 
     def mark_finished(self, stage: str, **info) -> None:
+        self.fence()
         stages = dict(self.attrs.get("stages", {}))
         stages[stage] = {"finished": now(), **info}
         self.root.attrs["stages"] = stages
@@ -438,6 +441,7 @@ class ScoreStore:
 
     def write_block(self, group: str, block, arrays: dict[str, np.ndarray]) -> None:
         """Write one finished block: data chunks, then its integrity row, then ``done``."""
+        self.fence()
         layout = self.layout(group)
         row = np.zeros(len(layout.names), dtype="uint64")
         done_region = None
