@@ -130,7 +130,7 @@ class EvaluateConfig:
 class ReportConfig:
     stores: list[str] = field(default_factory=list)  # empty: this run's store
     dir: str | None = None  # default: the run's Hydra output folder
-    renders: int = 3  # instances rendered with BOX's first choice, per store
+    renders: int = 3  # instances rendered with BOX's first feasible plan, per store
     fractions: list[float] = field(default_factory=lambda: [0.1, 0.25, 0.5, 1.0])
     repeats: int = 5  # random held-out sets per learning-curve point
     c_grid: list[float] = field(default_factory=lambda: [0.0, 0.5, 1.0, 1.96, 3.0, 5.0])

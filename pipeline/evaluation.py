@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 import box_core
+from box_core.stats import INTERVAL_METHOD
 from pipeline import evaluation_store
 from pipeline.configs import RAWPLANNER
 from pipeline.context import StageContext
@@ -31,6 +32,12 @@ def stored_revision(info: dict) -> int:
     return int(info.get("selector_revision", 1))
 
 
+def interval_method(info: dict) -> str:
+    """The interval method of a stored evaluation's summary (percentile bootstrap before
+    the method was recorded)."""
+    return info.get("interval_method", "percentile bootstrap")
+
+
 def selector_params(names, settings) -> dict:
     """box_core parameters from the evaluate.* settings (BOX's C)."""
     return {"box": {"c": settings["c"]}} if "box" in names else {}
@@ -42,9 +49,10 @@ def evaluate(ctx: StageContext) -> None:
     info = store.stage_info("evaluate")
     if info is not None and info.get("settings") == settings and stored_revision(
             info) == box_core.SELECTOR_REVISION:
-        ctx.say("evaluate: already complete with these settings; nothing to do")
-        print_stored_summary(ctx)
-        return
+        if interval_method(info) == INTERVAL_METHOD:
+            ctx.say("evaluate: already complete with these settings; nothing to do")
+            print_stored_summary(ctx)
+            return
     names = list(dict.fromkeys(settings["selectors"]))
     with_raw = RAWPLANNER in names
     names = [s for s in names if s != RAWPLANNER]
@@ -80,7 +88,8 @@ def evaluate(ctx: StageContext) -> None:
                "hidden": hide is not None}
     store.mark_finished("evaluate", settings=settings, failure_value=result.failure_value,
                         summary=summary.to_dict(), leakage=leakage,
-                        selector_revision=box_core.SELECTOR_REVISION)
+                        selector_revision=box_core.SELECTOR_REVISION,
+                        interval_method=INTERVAL_METHOD)
     n, m = scores.shape
     ctx.console.print(summary_table(summary, title=f"{ctx.path.name}  ({n} x {m})"))
 

@@ -27,11 +27,12 @@ from rich.console import Console
 from rich.text import Text
 
 from box_core import SELECTOR_REVISION
+from box_core.stats import INTERVAL_METHOD
 from pipeline import configs, environment, validation, worker
 from pipeline.configs import Stage
 from pipeline.context import StageContext
 from pipeline.domains import ConstraintSet, load_domain
-from pipeline.evaluation import stored_revision
+from pipeline.evaluation import interval_method, stored_revision
 from pipeline.execution import Task, connect_first, dask_client, run_tasks
 from pipeline.integrity import Damage, digest
 from pipeline.location import locate
@@ -313,6 +314,8 @@ def todo_evaluate(run: Run) -> str | None:
     if stored_revision(info) != SELECTOR_REVISION:
         return (f"box_core's selectors changed (revision {stored_revision(info)} -> "
                 f"{SELECTOR_REVISION})")
+    if interval_method(info) != INTERVAL_METHOD:
+        return f"its intervals are {interval_method(info)}, this version's are {INTERVAL_METHOD}"
     changed = run.changed_inputs("evaluate")
     if changed:
         return f"its inputs changed ({', '.join(changed)})"

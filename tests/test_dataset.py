@@ -186,18 +186,22 @@ def test_a_layout_3_store_migrates_keeping_every_entry_and_its_evaluation(tmp_pa
     res = run_layout_3(store, "stage=generate")
     assert res.returncode == 0, res.stderr + res.stdout
     assert "migrated to layout 4" in res.stdout and "repaired" in res.stdout
-    res = run_layout_3(store, "stage=evaluate", "evaluate.k=4")
-    assert "evaluate: already complete" in res.stdout  # regrouped, not computed again
     doc = _status(store)
     assert doc["layout_version"] == 4 and not doc["damaged"]
     g = zarr.open_group(store, mode="r")
     for key, values in before.items():
         assert g[key][...].tobytes() == values.tobytes(), key
     evaluation = xr.open_zarr(store, group="evaluation")
-    assert list(evaluation.selector.values) == names
+    assert list(evaluation.selector.values) == names  # regrouped, not computed again
     for (name, what), values in old.items():
         new = evaluation[what].sel(selector=name).values
         assert new.tobytes() == values.tobytes(), (name, what)
+    # its intervals were percentile ones: the next evaluate computes them as this version does
+    res = run_layout_3(store, "stage=evaluate", "evaluate.k=4")
+    assert res.returncode == 0, res.stderr + res.stdout
+    assert "its intervals are percentile bootstrap" in res.stdout
+    res = run_layout_3(store, "stage=evaluate", "evaluate.k=4")
+    assert "evaluate: already complete" in res.stdout
     assert list(xr.open_zarr(store, group="constraints").feature.values) == ["via_x", "via_y"]
     assert isinstance(with_names(xr.open_zarr(store, group="scores")).status.to_series(),
                       pd.Series)
