@@ -67,7 +67,9 @@ def mean_ci(values, level: float = 0.95) -> tuple[float, float, float]:
         return (mean, math.nan, math.nan)
     res = stats.bootstrap((x,), np.mean, **_options(x.size, level, "percentile"))
     low, high = res.confidence_interval
-    return (mean, float(low), float(high))
+    # Resampled means of equal values can differ from the mean in the last bit (summation
+    # order); the interval is held around the mean so that low <= mean <= high always.
+    return (mean, min(float(low), mean), max(float(high), mean))
 
 
 def mean_ci_columns(values: np.ndarray, level: float = 0.95):
