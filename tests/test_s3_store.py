@@ -3,82 +3,24 @@
 
 import json
 import os
-import shutil
 import signal
-import socket
-import subprocess
 import time
 
 import numpy as np
 import pytest
-import zarr
 from typer.testing import CliRunner
 
 from tests import pipeline_runs as pr
-
-BUCKET = "box-test"
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from tests.s3_server import BUCKET, serve
+from tests.s3_server import done as _done
+from tests.s3_server import matrix as _matrix
 
 
 @pytest.fixture(scope="module")
-def s3(tmp_path_factory):
+def s3():
     """The server's environment (AWS_ENDPOINT_URL, credentials) with a fresh bucket."""
-    server = shutil.which("moto_server")
-    if server is None:
-        pytest.skip('moto_server is not installed (pip install -e ".[test]")')
-    pytest.importorskip("s3fs", reason='s3fs is not installed (pip install -e ".[test]")')
-    port = _free_port()
-    proc = subprocess.Popen([server, "-H", "127.0.0.1", "-p", str(port)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    env = {"AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}", "AWS_ACCESS_KEY_ID": "testing",
-           "AWS_SECRET_ACCESS_KEY": "testing", "AWS_DEFAULT_REGION": "us-east-1"}
-    saved = {k: os.environ.get(k) for k in env}
-    os.environ.update(env)  # for this process's readers (zarr, box status, box export)
-    try:
-        while True:
-            assert proc.poll() is None, "moto_server exited"
-            try:
-                socket.create_connection(("127.0.0.1", port), timeout=1).close()
-                break
-            except OSError:
-                time.sleep(0.1)
-        import s3fs
-
-        s3fs.S3FileSystem(endpoint_url=env["AWS_ENDPOINT_URL"]).mkdir(BUCKET)
+    with serve() as env:
         yield env
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
-
-
-def _matrix(url: str) -> dict:
-    from pipeline.location import locate
-
-    g = zarr.open_group(store=locate(url).zarr_store(read_only=True), mode="r",
-                        use_consolidated=False)
-    return {name: g[f"scores/{name}"][...] for name in ("score", "feasible", "status", "checks",
-                                                         "length", "step")}
-
-
-def _done(url: str) -> int:
-    try:
-        from pipeline.location import locate
-
-        g = zarr.open_group(store=locate(url).zarr_store(read_only=True), mode="r",
-                            use_consolidated=False)
-        return int(g["scores/done"][...].sum())
-    except Exception:  # noqa: BLE001 (not created yet)
-        return 0
 
 
 def test_full_run_status_and_export_on_s3(s3, made, tmp_path):

@@ -1,0 +1,86 @@
+"""A real S3-compatible server process for tests (moto's standalone ``moto_server``) on
+127.0.0.1, configured the way AWS users expect (environment variables), and readers of
+stores in it.  Test modules make their own fixture of :func:`serve` (module-scoped)."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import socket
+import subprocess
+import time
+
+import pytest
+import zarr
+
+BUCKET = "box-test"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextlib.contextmanager
+def serve():
+    """The server's environment (AWS_ENDPOINT_URL, credentials) with a fresh bucket
+    :data:`BUCKET`, also set in this process's environment (for its readers: zarr, ``box
+    status``, ``box export``) while the server runs.  Skips the test when moto or s3fs is
+    not installed."""
+    server = shutil.which("moto_server")
+    if server is None:
+        pytest.skip('moto_server is not installed (pip install -e ".[test]")')
+    pytest.importorskip("s3fs", reason='s3fs is not installed (pip install -e ".[test]")')
+    port = free_port()
+    proc = subprocess.Popen([server, "-H", "127.0.0.1", "-p", str(port)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    env = {"AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}", "AWS_ACCESS_KEY_ID": "testing",
+           "AWS_SECRET_ACCESS_KEY": "testing", "AWS_DEFAULT_REGION": "us-east-1"}
+    saved = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            assert proc.poll() is None, "moto_server exited"
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                break
+            except OSError:
+                assert time.monotonic() < deadline, "moto_server did not start listening"
+                time.sleep(0.1)
+        import s3fs
+
+        s3fs.S3FileSystem(endpoint_url=env["AWS_ENDPOINT_URL"]).mkdir(BUCKET)
+        yield env
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _group(url: str) -> zarr.Group:
+    from pipeline.location import locate
+
+    return zarr.open_group(store=locate(url).zarr_store(read_only=True), mode="r",
+                           use_consolidated=False)
+
+
+def matrix(url: str) -> dict:
+    """The deterministic part of D (everything but times) of the store at ``url``."""
+    g = _group(url)
+    return {name: g[f"scores/{name}"][...] for name in ("score", "feasible", "status", "checks",
+                                                         "length", "step")}
+
+
+def done(url: str) -> int:
+    """Entries of ``scores`` whose block is done (0 before the array exists)."""
+    try:
+        return int(_group(url)["scores/done"][...].sum())
+    except Exception:  # noqa: BLE001 (not created yet)
+        return 0
