@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.configs import RAWPLANNER
+from pipeline.integrity import digest
 from pipeline.store import TIME_UNITS, ScoreStore, result_key
 
 GROUP = "evaluation"
@@ -132,6 +133,15 @@ def _read_groups(store: ScoreStore) -> StoredEvaluation:
         first_feasible_time=read_each("first_feasible_time", names), best_score=best,
         first_feasible_step=read_each("first_feasible_step", learnt),
         order=read_each("order", learnt))
+
+
+def record(store: ScoreStore) -> dict:
+    """What the evaluate stage records of what it wrote: the digest of each array's values
+    (``outputs``) and each node's metadata document (``metadata``, checked by
+    :mod:`pipeline.metadata`)."""
+    keys = store.arrays_under(GROUP)
+    return {"outputs": {k: f"{digest(store.array(k)[...]):016x}" for k in keys},
+            "metadata": {k: store.document(k) for k in (GROUP, *keys)}}
 
 
 def raw_curve(feasible, time, length, time_grid, failure_value) -> np.ndarray:

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import evaluation_store, integrity
+from pipeline import evaluation_store, integrity, layout
 from pipeline.integrity import digest
 from pipeline.store import (
     ENVIRONMENT,
@@ -81,7 +81,7 @@ def to_layout_2(store: ScoreStore, domain) -> list[str]:
         store.create_table("scores", [*names, *coords])
         notes.append(f"scores: {_adopt(store, 'scores')} blocks adopted")
     store.forget_stage("evaluate")  # recomputed with its inputs recorded
-    store.root.attrs["layout_version"] = 2
+    store.set_attrs(layout_version=2)
     return notes
 
 
@@ -91,7 +91,7 @@ def to_layout_3(store: ScoreStore) -> list[str]:
         if store.has_results(group) and store.has_table(group):
             notes.append(f"{group}: {_add_environment(store, group)} blocks of unrecorded "
                          "environment")
-    store.root.attrs["layout_version"] = 3
+    store.set_attrs(layout_version=3)
     return notes
 
 
@@ -126,6 +126,25 @@ def _record_columns(store: ScoreStore, group: str, names) -> None:
                  **{**dict(table.attrs), "arrays": columns})[...] = rows
 
 
+def _order_columns(store: ScoreStore, group: str, columns: list[str]) -> None:
+    """Put ``group``'s integrity table in the column order of the layout (that of a store
+    made by this version, which :mod:`pipeline.metadata` checks it against): the recorded
+    digests move with their names; a column the layout adds is recorded from the current
+    values of recorded blocks."""
+    names = list(store.layout(group).names)
+    if names == columns:
+        return
+    added = [name for name in columns if name not in names]
+    if added:
+        _record_columns(store, group, added)
+        names = list(store.layout(group).names)
+    table = store.array(f"{integrity.GROUP}/{group}")
+    rows = table[...][..., [names.index(name) for name in columns]]
+    store.create(f"{integrity.GROUP}/{group}", rows.shape, table.chunks[:-1] + (len(columns),),
+                 "uint64", 0, table.metadata.dimension_names,
+                 **{**dict(table.attrs), "arrays": columns})[...] = rows
+
+
 def to_layout_4(store: ScoreStore, domain) -> list[str]:
     notes = []
     for group in ("instances", "raw", "constraints", "scores"):
@@ -134,9 +153,12 @@ def to_layout_4(store: ScoreStore, domain) -> list[str]:
             if added:
                 notes.append(f"{group}: coordinates {', '.join(added)}")
     _describe(store, domain)
+    for group in ("instances", "raw", "constraints", "scores"):
+        if store.has_table(group):
+            _order_columns(store, group, layout.table_columns(group, domain))
     if store.has_group(evaluation_store.GROUP) and not store.has(evaluation_store.key("selector")):
         notes.append(_regroup_evaluation(store))
-    store.root.attrs["layout_version"] = 4
+    store.set_attrs(layout_version=4)
     return notes
 
 
@@ -196,9 +218,7 @@ def _regroup_evaluation(store: ScoreStore) -> str:
         return "evaluation: damaged or incomplete; it is computed again by stage evaluate"
     units = store.array(result_key("scores", "score")).attrs.get("units", "1")
     evaluation_store.write(store, old, score_units=units)
-    outputs = {key: f"{digest(store.array(key)[...]):016x}"
-               for key in store.arrays_under(evaluation_store.GROUP)}
-    store.mark_finished("evaluate", **{**info, "outputs": outputs})
+    store.mark_finished("evaluate", **{**info, **evaluation_store.record(store)})
     return f"evaluation: {len(old.selectors)} selectors along the selector dimension"
 
 

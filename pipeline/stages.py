@@ -28,7 +28,7 @@ from rich.text import Text
 
 from box_core import SELECTOR_REVISION
 from box_core.stats import INTERVAL_METHOD
-from pipeline import configs, environment, validation, worker
+from pipeline import configs, environment, evaluation_store, layout, metadata, validation, worker
 from pipeline.configs import Stage
 from pipeline.context import StageContext
 from pipeline.domains import ConstraintSet, load_domain
@@ -43,7 +43,6 @@ from pipeline.store import (
     INSTANCE_SPEC,
     LAYOUT_VERSION,
     RAW_CONSTRAINT,
-    SOURCE_INSTANCE,
     THETA,
     LockError,
     ScoreStore,
@@ -54,11 +53,7 @@ from pipeline.store import (
     check_is_ours,
     default_path,
     domain_spec_of,
-    feature_coord,
-    index_coord,
-    instance_coord,
     result_key,
-    source_coord,
     write_error,
 )
 
@@ -145,11 +140,19 @@ class Run:
             self.location, self.identity, self.recorded_config(),
             overwrite=self.cfg.store.mode is configs.StoreMode.overwrite)
         self.store.fence = lock.check
+        note = metadata.repair_layout_version(self.store)
+        if note:
+            self.say(f"[yellow]store: {note}")
         if self.store.layout_version < LAYOUT_VERSION:
             from pipeline.migrate import migrate
 
             for note in migrate(self.store, self.domain):
                 self.say(f"store: migrated to {note}")
+        found = metadata.check(self.store, self.domain)
+        if found:
+            for note in metadata.repair(self.store, self.domain, found):
+                self.say(f"[yellow]store: {note}")
+            self.wrote = True
         self.writing = True
         return self.store
 
@@ -281,6 +284,8 @@ def todo_whole(run: Run, stage: str, group: str) -> str | None:
     store = run.store
     if store is None or store.stage_info(stage) is None:
         return "not run yet"
+    if lost_table(store, group):
+        return "its integrity table is missing"
     changed = run.changed_inputs(stage)
     if changed:
         return f"its inputs changed ({', '.join(changed)})"
@@ -288,11 +293,19 @@ def todo_whole(run: Run, stage: str, group: str) -> str | None:
     return f"damaged: {damage.describe()}" if damage else None
 
 
+def lost_table(store, group: str) -> bool:
+    """Whether ``group``'s integrity table is gone from a store that had one: its data can
+    no longer be verified, so it is computed again (and compared, where it is an input)."""
+    return store.layout_version >= 2 and store.has_group(group) and not store.has_table(group)
+
+
 def todo_blocks(run: Run, stage: str) -> str | None:
     """Why a result stage (raw, scores) must run, or None."""
     store = run.store
     if store is None or not store.has_results(stage):
         return "not run yet"
+    if lost_table(store, stage):
+        return "its integrity table is missing: every block is computed again"
     changed = run.changed_inputs(stage)
     if changed:
         return f"its inputs changed ({', '.join(changed)})"
@@ -386,17 +399,11 @@ def stage_instances(run: Run) -> None:
     seeds = instance_seeds(run.cfg.seed, n)
     specs = np.array([json.dumps(run.domain.sample_instance(int(s)), sort_keys=True)
                       for s in seeds], dtype=str)
-    chunk = (run.cfg.store.block_instances,)
-
-    coords = index_coord("instance", n, "instance index")
+    size = layout.size_of(store.attrs)
+    coords = layout.coords("instances", run.domain, size)
 
     def make():
-        store.create(INSTANCE_SEED, (n,), chunk, "int64", 0, ("instance",),
-                     long_name="seed the instance was sampled from")
-        store.create(INSTANCE_SPEC, (n,), chunk, str, "", ("instance",),
-                     long_name="instance spec, JSON text")
-        store.write_coords("instances", coords, ["seed", "spec"])
-        store.create_table("instances", ["seed", "spec", *coords])
+        layout.create(store, "instances", run.domain, size, coords)
 
     repairing = store.stage_info("instances") is not None
     _write_whole(run, "instances", {"seed": seeds, "spec": specs,
@@ -420,14 +427,10 @@ def stage_raw(run: Run) -> None:
     if run.todo("raw") is None:
         run.say("raw: already complete; nothing to do")
         return
-    p = run.domain.n_features
-    coords = {**instance_coord(store.instance_seeds()), **feature_coord(run.domain)}
+    size = layout.size_of(store.attrs)
+    coords = layout.coords("raw", run.domain, size, seeds=store.instance_seeds())
     if not store.has_table("raw") or store.missing_arrays("raw"):
-        extra = [("tries", (n,), (b,), "int32", 0, ("instance",), {}),
-                 ("constraint", (n, p), (b, p), "float64", np.nan, ("instance", "feature"),
-                  {"long_name": "constraint θ extracted from the raw solution (NaN: none); "
-                                "units: feature_units"})]
-        store.create_results("raw", (n,), (b,), ("instance",), run.domain, extra, coords)
+        layout.create(store, "raw", run.domain, size, coords)
     pending = run.pending_blocks("raw", coords)
     store.forget_stage("raw")
     specs, seeds = _inputs(run)
@@ -469,19 +472,11 @@ def stage_constraints(run: Run) -> None:
         rng = np.random.default_rng([run.cfg.seed, 3])
         keep = np.sort(rng.choice(candidates.m, size=m, replace=False))
     theta = candidates.features[keep]
-    bc, p = run.cfg.store.block_constraints, theta.shape[1]
-    coords = {**index_coord("constraint", len(keep), "constraint index"),
-              **feature_coord(domain)}
+    size = layout.size_of(store.attrs)._replace(m=len(keep))
+    coords = layout.coords("constraints", domain, size)
 
     def make():
-        store.create(THETA, theta.shape, (bc, p), "float64", np.nan,
-                     ("constraint", "feature"),
-                     long_name="features of the constraint θ; units: feature_units")
-        store.create(SOURCE_INSTANCE, (len(keep),), (bc,), "int64", -1,
-                     ("constraint",), long_name="instance whose raw solution gave it; "
-                     "-1: a fixed set")
-        store.write_coords("constraints", coords, ["theta", "source_instance"])
-        store.create_table("constraints", ["theta", "source_instance", *coords])
+        layout.create(store, "constraints", domain, size, coords)
 
     repairing = store.stage_info("constraints") is not None and "damaged" in reason
     _write_whole(run, "constraints", {"theta": theta,
@@ -503,11 +498,11 @@ def stage_scores(run: Run) -> None:
     if run.todo("scores") is None:
         run.say(f"scores: already complete ({n} x {m}); nothing to do")
         return
-    coords = {**instance_coord(store.instance_seeds()),
-              **source_coord(store.source_instances())}
+    size = layout.size_of(store.attrs)
+    coords = layout.coords("scores", run.domain, size, seeds=store.instance_seeds(),
+                           sources=store.source_instances())
     if not store.has_table("scores") or store.missing_arrays("scores"):
-        store.create_results("scores", (n, m), (bi, bj), ("instance", "constraint"),
-                             run.domain, coords=coords)
+        layout.create(store, "scores", run.domain, size, coords)
     pending = run.pending_blocks("scores", coords)
     store.forget_stage("scores")
     specs, seeds = _inputs(run)
@@ -543,10 +538,9 @@ def stage_evaluate(run: Run) -> None:
         store.remove("evaluation")
     evaluation.evaluate(run.context())
     if reason is not None:
-        outputs = {key: f"{digest(store.array(key)[...]):016x}"
-                   for key in store.arrays_under("evaluation")}
         keys = [k for k in INPUTS["evaluate"] if store.has(k)]
-        store.update_stage("evaluate", inputs=store.array_digests(keys), outputs=outputs)
+        store.update_stage("evaluate", inputs=store.array_digests(keys),
+                           **evaluation_store.record(store))
         run.wrote = True
 
 
@@ -625,9 +619,12 @@ def run_pipeline(cfg, console: Console) -> None:
 
 def _write_stages(run: Run, names) -> None:
     """Run the store-writing stages ``names``: checked read-only first, written (under the
-    lock) only from the first stage that has work."""
-    run.open_for_reading()
+    lock) only from the first stage that has work.  Metadata documents are checked before
+    any array is read: a damaged one is repaired (or refused) first."""
+    store = run.open_for_reading()
     try:
+        if store is not None and metadata.check(store, run.domain):
+            run.open_for_writing()
         for name in names:
             if not run.writing and run.todo(name) is not None:
                 if {"raw", "scores"} & set(names) and connect_first(run.cfg.cluster):
@@ -646,7 +643,7 @@ def _write_stages(run: Run, names) -> None:
             if run.wrote:
                 run.store.consolidate()
         if run.wrote:
-            run.store.root.attrs["config"] = run.recorded_config()  # the latest settings
+            run.store.set_attrs(config=run.recorded_config())  # the latest settings
             run.store.consolidate()
     except OSError as exc:
         raise write_error(run.location, exc) from None

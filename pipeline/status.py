@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from rich.console import Console
 
-from pipeline import integrity
+from pipeline import integrity, metadata
 from pipeline.environment import describe, difference
 from pipeline.integrity import Damage
 from pipeline.provenance import WHY
@@ -20,7 +20,7 @@ STAGE_GROUPS = {"instances": "instances", "raw": "raw", "constraints": "constrai
 def _damage(store: ScoreStore, stage: str, group: str) -> Damage:
     if group in BLOCK_DIMS:
         if not store.has_table(group) and store.layout_version >= 2 \
-                and store.stage_info(stage) is not None:
+                and (store.stage_info(stage) is not None or store.has(f"{group}/done")):
             damage = Damage()
             damage.add("missing", f"{integrity.GROUP}/{group}", ())
             return damage
@@ -46,29 +46,36 @@ def refuse_damaged(store: ScoreStore, stages=("instances", "constraints", "score
 
 def collect(path) -> dict:
     """Plain-data status of the store at ``path`` (raises StoreError if it is not ours)."""
-    store = ScoreStore.open(path)
+    store = ScoreStore.open(path, checked=False)
     attrs = store.attrs
+    found = metadata.check(store, metadata.store_domain(store))
+    unreadable = metadata.structural(found)  # never read as their documents now say
     report = {"path": str(store.path), "config_hash": attrs.get("config_hash"),
               "created": attrs.get("created"), "layout_version": store.layout_version,
               "running": StoreLock(store.location).held_by_other(), "stages": {},
-              "arrays": [], "damaged": {}}
+              "arrays": [], "damaged": {}, "metadata": [d.describe() for d in found]}
     damage = Damage()
     for stage, group in STAGE_GROUPS.items():
         info = attrs.get("stages", {}).get(stage)
         entry = {"finished": info.get("finished") if info else None}
+        report["stages"][stage] = entry
+        if group in unreadable:
+            continue
         if store.has(f"{group}/done"):
             try:
                 done = store.done(group)
             except Exception:  # noqa: BLE001 (a damaged mask: reported below)
                 done = np.zeros(store.array(f"{group}/done").shape, dtype=bool)
             entry["done"], entry["total"] = int(done.sum()), int(done.size)
-        report["stages"][stage] = entry
         found = _damage(store, stage, group)
         for kind in ("corrupted", "missing"):
             for array, blocks in getattr(found, kind).items():
                 getattr(damage, kind).setdefault(array, set()).update(blocks)
     for group in (*STAGE_GROUPS.values(), integrity.GROUP):
         for key in store.arrays_under(group):
+            if key.split("/")[0] in unreadable or key.split("/")[-1] in unreadable \
+                    and group == integrity.GROUP:
+                continue
             arr = store.array(key)
             report["arrays"].append({
                 "array": key, "shape": list(arr.shape),
@@ -101,9 +108,10 @@ def _environments(store: ScoreStore) -> list[dict]:
 
 
 def damaged(report: dict) -> str:
-    """The damaged arrays of a status report in words ("" when there is none)."""
-    return "; ".join(f"{key} ({', '.join(f'{n} {kind}' for kind, n in counts.items() if n)} "
-                     "blocks)" for key, counts in report["damaged"].items())
+    """The damage of a status report in words ("" when there is none)."""
+    blocks = (f"{key} ({', '.join(f'{n} {kind}' for kind, n in counts.items() if n)} blocks)"
+              for key, counts in report["damaged"].items())
+    return "; ".join([*(f"metadata {m}" for m in report["metadata"]), *blocks])
 
 
 def _print_environments(found: list[dict], layout: int, console: Console) -> None:
@@ -158,7 +166,12 @@ def print_status(path, console: Console) -> dict:
                                Column("corrupted"), Column("missing")], arrays,
                               title="arrays"))
     _print_environments(report["environments"], report["layout_version"], console)
+    for line in report["metadata"]:
+        console.print(f"[red]metadata differs: {line}", highlight=False, soft_wrap=True)
     if report["damaged"]:
         console.print(f"[red]corrupted chunks found: {damaged(report)}; re-run the same "
                       "command to recompute them", highlight=False)
+    elif report["metadata"]:
+        console.print("[red]re-run the same command to repair the metadata (or to be told "
+                      "why it cannot be)", highlight=False)
     return report

@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import errno
+import json
 import subprocess
 import warnings
 from dataclasses import dataclass
@@ -213,13 +214,33 @@ class ScoreStore:
         self._arrays: dict[str, zarr.Array] = {}
         #: called before each block write and stage record: the run's lock check (fencing)
         self.fence = lambda: None
+        #: only metadata is written (:meth:`in_memory`, the layout a store must have)
+        self.metadata_only = False
+
+    @classmethod
+    def in_memory(cls) -> ScoreStore:
+        """An empty store in memory that records arrays' metadata but no values: what
+        :mod:`pipeline.layout` creates to know the documents a store must hold."""
+        self = cls.__new__(cls)
+        self.location, self.path, self.read_only = None, "(the expected layout)", False
+        self.zstore = zarr.storage.MemoryStore()
+        self.root = zarr.open_group(store=self.zstore, mode="w", use_consolidated=False)
+        self._arrays, self.fence, self.metadata_only = {}, lambda: None, True
+        return self
 
     # -- opening ---------------------------------------------------------------------------
     @classmethod
-    def open(cls, path, read_only: bool = True) -> ScoreStore:
-        """An existing store of ours (for status, evaluation, export)."""
+    def open(cls, path, read_only: bool = True, checked: bool = True) -> ScoreStore:
+        """An existing store of ours (for evaluation, export, reports).  ``checked``: its
+        metadata documents are checked first (StoreDamaged naming each difference), so a
+        reader never allocates what a damaged document claims (status checks them itself)."""
         check_is_ours(path)
-        return cls(path, read_only=read_only)
+        store = cls(path, read_only=read_only)
+        if checked:
+            from pipeline import metadata
+
+            metadata.refuse(store)
+        return store
 
     @classmethod
     def prepare(cls, path, identity: dict, config: dict, overwrite: bool) -> ScoreStore:
@@ -246,17 +267,30 @@ class ScoreStore:
                     "to replace it")
         root = zarr.open_group(store=location.zarr_store(read_only=False), mode="w",
                                use_consolidated=False)
-        root.attrs.update({
-            "format": FORMAT, "layout_version": LAYOUT_VERSION, "identity": identity,
-            "config_hash": config_hash(identity), "config": config, "versions": versions(),
-            "git_revision": git_revision(), "created": now(), "stages": {},
-        })
-        return cls(location)
+        root.require_group(integrity.GROUP)
+        store = cls(location)
+        store.set_attrs(
+            format=FORMAT, layout_version=LAYOUT_VERSION, identity=identity,
+            config_hash=config_hash(identity), config=config, versions=versions(),
+            git_revision=git_revision(), created=now(), stages={})
+        return store
 
     # -- attributes and stages -------------------------------------------------------------
     @property
     def attrs(self) -> dict:
         return dict(self.root.attrs)
+
+    def set_attrs(self, **values) -> None:
+        """Write root attributes, then their record (:func:`pipeline.metadata.root_record`):
+        every root attribute the coordinator writes goes through here."""
+        self.root.attrs.update(values)
+        self.record_root()
+
+    def record_root(self) -> None:
+        """Record a digest of each root attribute in the ``integrity`` group."""
+        from pipeline.metadata import root_record
+
+        self.root.require_group(integrity.GROUP).attrs["root"] = root_record(self.attrs)
 
     @property
     def layout_version(self) -> int:
@@ -269,18 +303,18 @@ class ScoreStore:
         self.fence()
         stages = dict(self.attrs.get("stages", {}))
         stages[stage] = {"finished": now(), **info}
-        self.root.attrs["stages"] = stages
+        self.set_attrs(stages=stages)
 
     def update_stage(self, stage: str, **info) -> None:
         """Add ``info`` to a finished stage's record."""
         stages = dict(self.attrs.get("stages", {}))
         stages[stage] = {**stages[stage], **info}
-        self.root.attrs["stages"] = stages
+        self.set_attrs(stages=stages)
 
     def forget_stage(self, stage: str) -> None:
         stages = dict(self.attrs.get("stages", {}))
         if stages.pop(stage, None) is not None:
-            self.root.attrs["stages"] = stages
+            self.set_attrs(stages=stages)
 
     # -- arrays ----------------------------------------------------------------------------
     def has(self, key: str) -> bool:
@@ -358,7 +392,8 @@ class ScoreStore:
             description="index into the root attribute 'environments' of the environment "
                         "that computed the entry's block; -1: not recorded (computed before "
                         "layout 3)")
-        arr[...] = UNKNOWN_ENVIRONMENT
+        if not self.metadata_only:
+            arr[...] = UNKNOWN_ENVIRONMENT
         return arr
 
     # -- environments ------------------------------------------------------------------------
@@ -372,7 +407,7 @@ class ScoreStore:
         table = self.environments()
         if record in table:
             return table.index(record)
-        self.root.attrs[ENVIRONMENTS] = [*table, record]
+        self.set_attrs(**{ENVIRONMENTS: [*table, record]})
         return len(table)
 
     def environments_used(self, group: str) -> dict[int, int]:
@@ -392,8 +427,10 @@ class ScoreStore:
             chunks = (self._block_size(group, dims[0], len(values)),)  # 1-D coordinates
             dtype = str if values.dtype.kind in "OUT" else values.dtype
             fill = "" if dtype is str else (np.nan if values.dtype.kind == "f" else 0)
-            self.create(f"{group}/{name}", values.shape, chunks, dtype, fill, dims,
-                        **attrs)[...] = values
+            arr = self.create(f"{group}/{name}", values.shape, chunks, dtype, fill, dims,
+                              **attrs)
+            if not self.metadata_only:
+                arr[...] = values
         listed = " ".join(n for n in coords if n not in dims_of_coords(coords))
         if listed:
             for name in data_names:
@@ -702,11 +739,58 @@ class ScoreStore:
             table[tuple(block)] = 0
             self.set_done(group, block_region(block, chunks), False)
 
+    # -- metadata documents ------------------------------------------------------------------
+    def document(self, path: str) -> dict:
+        """The parsed ``zarr.json`` of node ``path`` ("" for the root) as stored, without
+        the consolidated copy of the others (KeyError when there is none, ValueError when
+        it is not a JSON object)."""
+        raw = self.read_bytes(_doc_key(path))
+        if raw is None:
+            raise KeyError(_doc_key(path))
+        doc = json.loads(raw)
+        if not isinstance(doc, dict):
+            raise ValueError(f"{_doc_key(path)} holds no JSON object")
+        doc.pop("consolidated_metadata", None)
+        return doc
+
+    def documents(self) -> dict[str, dict]:
+        """Every node's parsed ``zarr.json`` by path (for the in-memory layout)."""
+        from zarr.core.sync import sync
+
+        async def keys():
+            return [k async for k in self.zstore.list() if k.endswith("zarr.json")]
+
+        return {k[:-len("zarr.json")].rstrip("/"): self.document(k[:-len("zarr.json")].rstrip("/"))
+                for k in sync(keys())}
+
+    def read_bytes(self, key: str) -> bytes | None:
+        from zarr.core.buffer import default_buffer_prototype
+        from zarr.core.sync import sync
+
+        buf = sync(self.zstore.get(key, prototype=default_buffer_prototype()))
+        return None if buf is None else buf.to_bytes()
+
+    def write_document(self, path: str, doc: dict) -> None:
+        """Replace node ``path``'s ``zarr.json`` with ``doc`` (the arrays opened before
+        are forgotten: they would keep the old metadata)."""
+        from zarr.core.buffer import default_buffer_prototype
+        from zarr.core.sync import sync
+
+        data = json.dumps(doc, indent=2).encode()
+        sync(self.zstore.set(_doc_key(path), default_buffer_prototype().buffer.from_bytes(data)))
+        self._arrays.clear()
+        self.root = zarr.open_group(store=self.zstore, mode="r" if self.read_only else "r+",
+                                    use_consolidated=False)
+
     def consolidate(self) -> None:
         """Consolidated metadata for readers (xarray); only between runs' stages."""
         with warnings.catch_warnings():  # "not part of the v3 spec yet": known, intended
             warnings.filterwarnings("ignore", message=".*[Cc]onsolidated metadata.*")
             zarr.consolidate_metadata(self.zstore)
+
+
+def _doc_key(path: str) -> str:
+    return f"{path}/zarr.json" if path else "zarr.json"
 
 
 def _shape(region: tuple[slice, ...], shape) -> tuple[int, ...]:
