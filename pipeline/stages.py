@@ -424,9 +424,12 @@ def _inputs(run: Run):
 def stage_raw(run: Run) -> None:
     run.require("instances", "raw")
     store, n, b = run.store, run.cfg.instances.n, run.cfg.store.block_instances
-    if run.todo("raw") is None:
+    reason = run.todo("raw")
+    if reason is None:
         run.say("raw: already complete; nothing to do")
         return
+    if lost_table(store, "raw"):
+        run.say(f"[yellow]raw: {reason}")
     size = layout.size_of(store.attrs)
     coords = layout.coords("raw", run.domain, size, seeds=store.instance_seeds())
     if not store.has_table("raw") or store.missing_arrays("raw"):
@@ -495,9 +498,12 @@ def stage_scores(run: Run) -> None:
     store = run.store
     n, m = run.cfg.instances.n, store.stage_info("constraints")["m"]
     bi, bj = run.cfg.store.block_instances, run.cfg.store.block_constraints
-    if run.todo("scores") is None:
+    reason = run.todo("scores")
+    if reason is None:
         run.say(f"scores: already complete ({n} x {m}); nothing to do")
         return
+    if lost_table(store, "scores"):
+        run.say(f"[yellow]scores: {reason}")
     size = layout.size_of(store.attrs)
     coords = layout.coords("scores", run.domain, size, seeds=store.instance_seeds(),
                            sources=store.source_instances())
