@@ -212,7 +212,8 @@ class ScoreStore:
         self.root = zarr.open_group(store=self.zstore, mode="r" if read_only else "r+",
                                     use_consolidated=False)
         self._arrays: dict[str, zarr.Array] = {}
-        #: called before each block write and stage record: the run's lock check (fencing)
+        #: called before every write (blocks, records, attributes, arrays, documents): the
+        #: run's lock check (fencing)
         self.fence = lambda: None
         #: only metadata is written (:meth:`in_memory`, the layout a store must have)
         self.metadata_only = False
@@ -283,6 +284,7 @@ class ScoreStore:
     def set_attrs(self, **values) -> None:
         """Write root attributes, then their record (:func:`pipeline.metadata.root_record`):
         every root attribute the coordinator writes goes through here."""
+        self.fence()
         self.root.attrs.update(values)
         self.record_root()
 
@@ -343,6 +345,7 @@ class ScoreStore:
 
     def create(self, key: str, shape, chunks, dtype, fill, dims, **attrs) -> zarr.Array:
         """A new array at ``key`` (replacing any left by an interrupted run)."""
+        self.fence()
         group, name = key.rsplit("/", 1)
         parent = self.root.require_group(group)
         arr = parent.create_array(name, shape=tuple(shape), chunks=tuple(chunks), dtype=dtype,
@@ -355,6 +358,7 @@ class ScoreStore:
 
     def remove(self, key: str) -> None:
         """Delete a group or array and everything under it (any store kind)."""
+        self.fence()
         if key in self.root:
             del self.root[key]
         self._arrays = {k: v for k, v in self._arrays.items()
@@ -776,6 +780,7 @@ class ScoreStore:
         from zarr.core.buffer import default_buffer_prototype
         from zarr.core.sync import sync
 
+        self.fence()
         data = json.dumps(doc, indent=2).encode()
         sync(self.zstore.set(_doc_key(path), default_buffer_prototype().buffer.from_bytes(data)))
         self._arrays.clear()
@@ -784,6 +789,7 @@ class ScoreStore:
 
     def consolidate(self) -> None:
         """Consolidated metadata for readers (xarray); only between runs' stages."""
+        self.fence()
         with warnings.catch_warnings():  # "not part of the v3 spec yet": known, intended
             warnings.filterwarnings("ignore", message=".*[Cc]onsolidated metadata.*")
             zarr.consolidate_metadata(self.zstore)
