@@ -79,3 +79,26 @@ def test_unknown_schemes_are_refused_in_one_line(tmp_path):
     assert res.returncode == 2
     assert "unknown scheme 'nosuch'" in res.stderr and "Traceback" not in res.stderr
     assert {p.name for p in tmp_path.iterdir()} <= {"outputs"}
+
+
+def test_lost_input_tables_in_s3_are_rebuilt_without_recomputing_results(s3, made, tmp_path):
+    """Issue 24 case 2 in object storage: the integrity tables of instances and constraints
+    deleted; the re-run rebuilds them from the inputs computed again, keeps raw and scores."""
+    import s3fs
+
+    fs = s3fs.S3FileSystem(endpoint_url=s3["AWS_ENDPOINT_URL"])
+    key = f"{BUCKET}/runs/tables.zarr"
+    fs.put(str(made[0]), key, recursive=True)
+    fs.rm([f"{key}/integrity/instances", f"{key}/integrity/constraints"], recursive=True)
+    url = f"s3://{key}"
+
+    from pipeline.cli import app
+
+    status = CliRunner().invoke(app, ["status", url, "--json"])
+    assert status.exit_code == 1 and "integrity/constraints" in status.output
+    res = pr.run(url, "stage=generate", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr + res.stdout
+    assert "integrity table is missing" in res.stdout and "inputs changed" not in res.stdout
+    assert "scores: already complete" in res.stdout
+    assert CliRunner().invoke(app, ["status", url]).exit_code == 0
+    assert pr.same_matrix(pr.matrix(made[0]), _matrix(url))
