@@ -40,6 +40,13 @@ def main(cfg) -> None:
         _end(err, "damaged", exc, FAILED)
     except TaskFailed as exc:
         _end(err, "failed", exc, FAILED)
+    except Exception as exc:  # noqa: BLE001 - storage failures come as many types
+        from pipeline.storage_errors import storage_error
+
+        problem = storage_error(exc, _location(cfg))  # e.g. the endpoint went away mid-run
+        if problem is None:
+            raise
+        _end(err, "error", problem, BAD_INPUT)
     except KeyboardInterrupt:
         err.print("interrupted: finished blocks are saved; re-run the same command to resume")
         sys.exit(INTERRUPTED)
@@ -56,9 +63,10 @@ def _end(err: Console, kind: str, exc: Exception, code: int) -> None:
 
 def config_error(args: list[str]) -> str | None:
     """One line saying why the config composed from ``args`` cannot run: Hydra cannot
-    compose it (an unknown key, a value of the wrong type) or a value is refused by
-    :func:`pipeline.validation.validate`.  None when it can run, or when ``args`` hold flags
-    (``-m``, ``--cfg``, ...), which Hydra handles itself (``main`` validates each job).
+    compose it (an unknown key, a value of the wrong type), a value is refused by
+    :func:`pipeline.validation.validate`, or its store cannot be used (:func:`check_store`).
+    None when it can run, or when ``args`` hold flags (``-m``, ``--cfg``, ...), which Hydra
+    handles itself (``main`` validates each job).
 
     Checked before Hydra starts, so a refused command writes nothing, not even Hydra's
     ``outputs/`` folder."""
@@ -76,9 +84,34 @@ def config_error(args: list[str]) -> str | None:
         return _one_line(exc)
     try:
         validate(cfg)
+        check_store(cfg)
     except (StoreError, ValueError) as exc:
         return str(exc)
     return None
+
+
+def _location(cfg):
+    """The Location of the run's store (as :class:`pipeline.stages.Run` resolves it)."""
+    from omegaconf import OmegaConf
+
+    from pipeline.location import locate
+    from pipeline.validation import run_store
+
+    plain = OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)
+    return locate(plain["store"]["path"] or run_store(plain),
+                  plain["store"].get("storage_options"))
+
+
+def check_store(cfg) -> None:
+    """The run's store, if something is there, can be reached and is a store of ours whose
+    metadata can be read: a StoreError otherwise (no credentials, an endpoint that cannot be
+    reached, permission denied, a ``zarr.json`` that is truncated or invalid, a foreign
+    store).  The run checks all this again; checking it first writes nothing."""
+    from pipeline.store import check_is_ours
+
+    location = _location(cfg)
+    if not location.is_empty():
+        check_is_ours(location)
 
 
 def _one_line(exc: Exception) -> str:

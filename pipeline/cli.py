@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 from pathlib import Path
 
@@ -13,6 +14,8 @@ from rich.markup import escape
 import box_core
 from box_core import synthetic
 from box_core.io import MatrixFile, load_matrix
+from pipeline.errors import StoreDamaged
+from pipeline.storage_errors import translated
 from pipeline.store import INSTANCE_SEED, INSTANCE_SPEC, THETA, ScoreStore, StoreError, result_key
 from pipeline.tables import stdout_console, summary_table
 
@@ -25,8 +28,9 @@ app = typer.Typer(
 out = stdout_console()
 err = Console(stderr=True)
 
-#: Exit code for bad input (missing file or array, wrong shapes, bad values).
-BAD_INPUT = 2
+#: Exit codes: a damaged store; bad input (missing file or array, wrong shapes, bad values,
+#: a store that cannot be reached or read).
+DAMAGED, BAD_INPUT = 1, 2
 
 
 def _version(value: bool) -> None:
@@ -43,9 +47,23 @@ def _main(version: bool = typer.Option(False, "--version", callback=_version, is
     """Score-space constraint selection (BOX)."""
 
 
-def _fail(message: str) -> None:
-    err.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
-    raise typer.Exit(BAD_INPUT)
+def _fail(message: str, kind: str = "error", code: int = BAD_INPUT) -> None:
+    err.print(f"[bold red]{kind}:[/] {escape(message)}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+@contextlib.contextmanager
+def _reading(store):
+    """Read ``store`` in the block: a store that cannot be used (bad input, or a storage
+    failure: credentials, endpoint, permissions, unreadable metadata) ends the command with
+    one line and exit code 2, a damaged one with one line and exit code 1."""
+    try:
+        with translated(store):
+            yield
+    except (StoreError, ValueError) as exc:
+        _fail(str(exc))
+    except StoreDamaged as exc:
+        _fail(str(exc), "damaged", DAMAGED)
 
 
 @app.command()
@@ -79,18 +97,20 @@ def evaluate(
     with --*-var must exist in FILE; a damaged file or pickled objects are refused (exit 2).
     """
     forbidden = None
-    try:
-        if file.is_dir():
+    if file.is_dir():
+        with _reading(file):
             data, forbidden = _store_matrix(file)
-        elif file.suffix in (".nc", ".parquet") and file.is_file():
-            from pipeline.export import read_export
+    else:
+        try:
+            if file.suffix in (".nc", ".parquet") and file.is_file():
+                from pipeline.export import read_export
 
-            data, forbidden = read_export(file)
-        else:
-            data = load_matrix(file, scores=scores_var, times=times_var,
-                               feasible=feasible_var, features=features_var)
-    except (FileNotFoundError, ValueError, StoreError) as exc:
-        _fail(str(exc))
+                data, forbidden = read_export(file)
+            else:
+                data = load_matrix(file, scores=scores_var, times=times_var,
+                                   feasible=feasible_var, features=features_var)
+        except (FileNotFoundError, ValueError, StoreError) as exc:
+            _fail(str(exc))
     names = [s.strip() for s in selectors.split(",") if s.strip()]
     if not names:
         names = ["box", "static", "rand"] + (["doo"] if data.features is not None else [])
@@ -215,19 +235,18 @@ def status(store: str = typer.Argument(..., help=STORE_URL_HELP),
     """Show what STORE holds: stages, completion, corrupted chunks.
 
     Exit code 0 when every chunk reads back as recorded, 1 when some are corrupted or
-    missing (re-running the stage recomputes them), 2 when STORE is missing or not a store
-    of this pipeline.
+    missing (re-running the stage recomputes them), 2 when STORE is missing, not a store
+    of this pipeline, or cannot be reached or read (credentials, endpoint, permissions, a
+    truncated or invalid zarr.json).
     """
-    from pipeline.status import collect, print_status
+    from pipeline.status import collect, damaged, print_status
 
-    try:
+    with _reading(store):
         report = collect(store) if as_json else print_status(store, out)
-    except StoreError as exc:
-        _fail(str(exc))
     if as_json:
         typer.echo(json.dumps(report, indent=2))
-    if report["damaged"]:
-        raise typer.Exit(1)
+    if damaged(report):
+        raise typer.Exit(DAMAGED)
 
 
 @app.command()
@@ -247,7 +266,9 @@ def show(
     """
     from pipeline.worker import domain_for, entry_seed
 
-    try:
+    name = f"instance{instance}" + ("" if constraint is None else f"-constraint{constraint}")
+    target = out_path or Path.cwd() / f"{name}.png"
+    with _reading(store):  # everything from the store first, so a failure there draws nothing
         st = ScoreStore.open(store)
         if not st.has(INSTANCE_SPEC):
             raise StoreError(f"{store} has no instances yet; run stage=instances first")
@@ -257,33 +278,34 @@ def show(
             raise ValueError(f"--instance {instance} out of range: the store has {n} instances")
         spec = json.loads(str(specs[instance]))
         domain = domain_for(st.domain_spec())
-        name = f"instance{instance}" + ("" if constraint is None else f"-constraint{constraint}")
-        target = out_path or Path.cwd() / f"{name}.png"
         check_png_target(target, overwrite)
+        theta = seed = was = None
+        if constraint is not None:
+            if not st.has(THETA):
+                raise StoreError(f"{store} has no constraints yet; run stage=constraints first")
+            theta = st.theta()
+            if not 0 <= constraint < theta.shape[0]:
+                raise ValueError(f"--constraint {constraint} out of range: the store has "
+                                 f"{theta.shape[0]} constraints")
+            seed = entry_seed(int(st.attrs["config"]["seed"]),
+                              int(st.array(INSTANCE_SEED)[instance]), constraint)
+            if st.has_results("scores") and st.done("scores")[instance, constraint]:
+                was = bool(st.array(result_key("scores", "feasible"))[instance, constraint])
+    try:
         if constraint is None:
             domain.render(spec, None, target)
-            out.print(f"wrote {target}")
-            return
-        if not st.has(THETA):
-            raise StoreError(f"{store} has no constraints yet; run stage=constraints first")
-        theta = st.theta()
-        if not 0 <= constraint < theta.shape[0]:
-            raise ValueError(f"--constraint {constraint} out of range: the store has "
-                             f"{theta.shape[0]} constraints")
-        seed = int(st.attrs["config"]["seed"])
-        inst_seed = int(st.array(INSTANCE_SEED)[instance])
-        plan = domain.plan(domain.check_instance(spec), theta[constraint],
-                           seed=entry_seed(seed, inst_seed, constraint))
-        domain.render(spec, plan, target, constraint=theta[constraint])
-    except (StoreError, ValueError) as exc:
+        else:
+            plan = domain.plan(domain.check_instance(spec), theta[constraint], seed=seed)
+            domain.render(spec, plan, target, constraint=theta[constraint])
+    except ValueError as exc:
         _fail(str(exc))
     except OSError as exc:
         _fail(f"-o {target}: cannot write there ({exc.strerror or exc})")
-    stored = ""
-    if st.has_results("scores") and st.done("scores")[instance, constraint]:
-        was = bool(st.array(result_key("scores", "feasible"))[instance, constraint])
-        stored = " (as in the score matrix)" if was == plan.feasible else \
-            f" (the score matrix says {'feasible' if was else 'infeasible'})"
+    if constraint is None:
+        out.print(f"wrote {target}")
+        return
+    stored = "" if was is None else " (as in the score matrix)" if was == plan.feasible else \
+        f" (the score matrix says {'feasible' if was else 'infeasible'})"
     verdict = f"feasible, length {plan.length:.4g}" if plan.feasible else plan.status.name.lower()
     out.print(f"wrote {target}: {verdict}{stored}, {plan.time * 1e3:.1f} ms", highlight=False)
 
@@ -330,10 +352,8 @@ def export(
     """
     from pipeline.export import export as write
 
-    try:
+    with _reading(store):
         path, complete = write(store, fmt, out_path, overwrite=overwrite)
-    except (StoreError, ValueError) as exc:
-        _fail(str(exc))
     out.print(f"wrote {path}", highlight=False)
     if not complete:
         err.print("[yellow]warning:[/] the store is not complete; entries not computed yet "

@@ -179,26 +179,45 @@ def write_error(location, exc: OSError) -> StoreError:
                       "it and re-run the same command to resume")
 
 
-def _root_attrs(location: Location) -> dict | None:
-    """The root attributes if ``location`` holds a Zarr group, else None."""
-    try:
-        root = zarr.open_group(store=location.zarr_store(read_only=True), mode="r",
-                               use_consolidated=False)
-    except Exception:  # noqa: BLE001 (anything unreadable is not ours)
-        return None
-    return dict(root.attrs)
+def _root_attrs(location: Location) -> dict:
+    """The root attributes of the Zarr group at ``location``: a storage failure raises a
+    StoreError, a missing or unreadable root document what Zarr raises."""
+    from pipeline.storage_errors import translated
+
+    with translated(location):
+        return dict(zarr.open_group(store=location.zarr_store(read_only=True), mode="r",
+                                    use_consolidated=False).attrs)
 
 
 def check_is_ours(path) -> None:
+    """StoreError (one line) unless ``path`` holds a store of ours whose every ``zarr.json``
+    can be read (:func:`pipeline.storage_errors.check_metadata`).  A root document that
+    cannot be read, or says another format, beside the groups of a score store is named
+    as such: the store is ours, damaged (or not ours, but it is left untouched either way)."""
+    from pipeline.storage_errors import check_metadata, has_nodes, metadata_error
+
     location = locate(path)
     if location.local is not None and location.local.exists() and not location.local.is_dir():
         raise StoreError(f"{location} is not a score store made by this pipeline; "
                          "left untouched")
     if not location.exists():
         raise StoreError(f"no store at {location}")
-    if (_root_attrs(location) or {}).get("format") != FORMAT:
+    try:
+        attrs, unreadable = _root_attrs(location), None
+    except StoreError:
+        raise
+    except Exception as exc:  # noqa: BLE001 (Zarr raises many types for a bad root)
+        attrs, unreadable = {}, exc
+    if attrs.get("format") != FORMAT:
+        if has_nodes(location, [*BLOCK_DIMS, integrity.GROUP]):
+            if unreadable is not None:
+                raise metadata_error(location.path / "zarr.json", unreadable)
+            raise StoreError(f"{location}: its root attribute format is "
+                             f"{attrs.get('format')!r}, not {FORMAT!r}, though it holds the "
+                             "groups of a score store; left untouched")
         raise StoreError(f"{location} is not a score store made by this pipeline; "
                          "left untouched")
+    check_metadata(location)
 
 
 class ScoreStore:
