@@ -57,3 +57,15 @@ def test_the_readme_is_a_front_door():
     assert len(text.splitlines()) <= 300
     assert sum(line.endswith("# install, run the tests") for line in text.splitlines()) == 1
     assert sum(line.endswith("# install, run the main job") for line in text.splitlines()) == 1
+
+
+def test_config_files_point_at_schemas_that_exist():
+    """Each ``# Schema (types, meaning): FILE:CLASS`` comment in conf/ names a class that
+    the file defines."""
+    import re
+
+    pointers = [(path, m.group(1), m.group(2)) for path in sorted((ROOT / "conf").rglob("*.yaml"))
+                for m in re.finditer(r"Schema \(types, meaning\): (\S+):(\w+)", path.read_text())]
+    assert pointers
+    for path, source, cls in pointers:
+        assert f"class {cls}" in (ROOT / source).read_text(), f"{path}: {source}:{cls}"
