@@ -20,6 +20,8 @@ NumPy calls, which is what makes leave-one-out evaluation take seconds.
 
 from __future__ import annotations
 
+import heapq
+
 import numpy as np
 
 from box_core.prior import FoldPriors
@@ -32,9 +34,39 @@ TIE_REL = 1e-9
 
 
 class GaussianPosterior:
-    """Posterior over the score vectors of B instances, updated one observation at a time."""
+    """Posterior over the score vectors of B instances, updated one observation at a time.
 
-    def __init__(self, prior: FoldPriors, capacity: int = 16):
+    Columns whose covariance row is exactly zero in every fold (:meth:`FoldPriors.inert`:
+    constant columns, such as constraints never feasible on any row) are *inert*: their
+    column of W is zero and their mean and variance never move, and observing one appends
+    a zero row to W and moves nothing.  The batch does not store those zeros: W keeps the
+    rows of the other observations and, for batches of :attr:`NARROW_BATCH` or more, only
+    the columns that are not inert (plus the last m mod 4, see below).  Yet every number
+    it computes is the one conditioning on everything in full computes, bit for bit:
+
+    - the product l^T W, the only operation whose rounding depends on more than one
+      number, is still one BLAS call per instance over t rows with the zero rows in place
+      (their positions decide how BLAS groups the sum);
+    - over the narrow columns, the call rounds each column as the call over all m
+      columns does (OpenBLAS computes each output alike except for the last m mod 4,
+      which the narrow layout keeps last).  That is checked, never assumed: for every t
+      the narrow call is compared with the full one on random numbers first, and where
+      they differ in one bit W's rows are spread back to m columns for the call.
+
+    Each instance's arithmetic is the same whatever else the batch holds.
+    ``skip_inert=False`` conditions on inert columns in full (the unoptimised path).
+    """
+
+    #: W holds room for every row it may need (``capacity``, at most one per column that
+    #: is not inert) when that takes at most BUFFER_BYTES; otherwise it starts at
+    #: INITIAL_BYTES and doubles when full.
+    BUFFER_BYTES = 1 << 30
+    INITIAL_BYTES = 32 << 20
+    #: Batches at least this large keep W's columns narrow (a live selector, a batch of
+    #: one, would spend as much on the checks as it saves).
+    NARROW_BATCH = 4
+
+    def __init__(self, prior: FoldPriors, capacity: int = 16, skip_inert: bool = True):
         self.prior = prior
         size, m = prior.size, prior.m
         self.mean = prior.mean.copy()
@@ -42,10 +74,48 @@ class GaussianPosterior:
         self.var = self.prior_var.copy()
         self.eps = prior.jitter()
         self.scale = np.sqrt(np.maximum(self.prior_var.max(axis=1), 0.0))
+        self.inert = prior.inert() if skip_inert else np.zeros(m, dtype=bool)
         self.t = 0
-        self._W = np.empty((size, max(1, capacity), m))
-        self._alpha = np.empty((size, max(1, capacity)))
+        self._layout(size)
+        width = m if self._cols is None else self._cols.size
+        # W's rows can only come from columns that are not inert
+        self._limit = max(1, min(capacity, m - int(self.inert.sum())))
+        first = self._limit
+        if 8 * size * first * width > self.BUFFER_BYTES:
+            first = min(first, max(16, self.INITIAL_BYTES // (8 * max(1, size * width))))
+        self._W = np.empty((size, first, width))  # W's rows that are not zero, in order
+        self._step = np.empty((size, first), dtype=np.intp)  # the step of each
+        self._count = np.zeros(size, dtype=np.intp)  # rows of _W in use, per instance
+        self._alpha = np.empty((size, max(1, min(capacity, 64))))  # one entry per step
         self._rows = np.arange(size)
+        self._scratch = np.zeros((0, width))
+
+    def _layout(self, size: int) -> None:
+        """W's columns: all m, or (``_cols``) the columns that are not inert among the
+        first m - m mod 4, zero columns up to a multiple of 4, then the last m mod 4."""
+        m = self.inert.size
+        self._cols = None
+        tail = m & 3
+        main = np.flatnonzero(~self.inert[:m - tail])
+        if size < self.NARROW_BATCH or 4 * (main.size + 3 + tail) > 3 * m:
+            return
+        pad = -main.size % 4
+        filler = int(np.flatnonzero(self.inert)[0])  # an inert column: its W column is 0
+        self._cols = np.concatenate([main, np.full(pad, filler),
+                                     np.arange(m - tail, m)]).astype(np.intp)
+        self._real = np.concatenate([np.arange(main.size),
+                                     main.size + pad + np.arange(tail)]).astype(np.intp)
+        self._real_cols = self._cols[self._real]
+        self._at = np.full(m, -1, dtype=np.intp)  # column -> its column of W
+        self._at[self._real_cols] = self._real
+        self._verdict: dict[int, bool] = {}
+        self._probe = np.zeros((0, m))
+        if not all(self._exact(t) for t in range(1, 9)):  # a BLAS that rounds otherwise
+            self._cols = None
+            return
+        # the prior's covariance rows at W's columns (see FoldPriors.cov_rows)
+        self._scatter = np.ascontiguousarray(self.prior.scatter[:, self._cols])
+        self._centered = self.prior.centered[:, self._cols]
 
     @property
     def size(self) -> int:
@@ -54,38 +124,175 @@ class GaussianPosterior:
     def observe(self, cols: np.ndarray, scores: np.ndarray) -> None:
         """Condition instance b on score ``scores[b]`` at column ``cols[b]``, for every b."""
         t = self.t
-        if t == self._W.shape[1]:
+        if t == self._alpha.shape[1]:
+            alpha = np.empty((self.size, 2 * t))
+            alpha[:, :t] = self._alpha
+            self._alpha = alpha
+        inert = self.inert[cols]
+        if not inert.any():
+            self._condition(None, cols, scores, t)
+        else:
+            idle = np.flatnonzero(inert)
+            # What conditioning computes for an inert column j, without the O(t m) product:
+            # l = W[:, j] = 0, so the new row of W is 0, delta = sqrt(eps) and
+            # alpha = (y - mu_j) / delta; mean and var do not move.
+            resid = scores[idle] - self.prior.mean[idle, cols[idle]]
+            self._alpha[idle, t] = resid / np.sqrt(self.eps[idle])
+            busy = np.flatnonzero(~inert)
+            if busy.size:
+                self._condition(busy, cols[busy], scores[busy], t)
+        self.t = t + 1
+
+    def _condition(self, folds, cols, scores, t) -> None:
+        """The rank-one update of instances ``folds`` (None: all) at step ``t``."""
+        rows = self._rows if folds is None else folds
+        count = self._count[rows]
+        if count.size and count.max() == self._W.shape[1]:
             self._grow()
-        rows = self._rows
-        W = self._W[:, :t, :]
-        alpha = self._alpha[:, :t]
-        lw = W[rows, :, cols]  # (B, t): W[b, :, cols[b]], the 'l' of the module docstring
-        cross = self.prior.cov_rows(cols)  # (B, m)
+        at = cols if self._cols is None else self._at[cols]  # W's columns of cols
+        dense = bool((count == t).all())  # no inert observation yet: W is all stored
+        if dense:
+            lw = self._W[rows, :t, at]  # (B, t): W[b, :, cols[b]], the 'l' of the docstring
+        else:
+            lw = self._full_l(rows, at, count, t)
+        cross = self._cov_rows(cols, folds)  # (B, width)
         if t:
-            cross -= np.matmul(lw[:, None, :], W)[:, 0, :]
-        schur = self.prior_var[rows, cols] + self.eps - np.einsum("bt,bt->b", lw, lw)
+            if dense and folds is None and self._exact(t):
+                cross -= np.matmul(lw[:, None, :], self._W[:, :t, :])[:, 0, :]
+            else:
+                self._subtract_products(cross, rows, lw, count, t)
+        alpha = self._alpha[rows, :t]
+        eps = self.eps[rows]
+        schur = self.prior_var[rows, cols] + eps - np.einsum("bt,bt->b", lw, lw)
         # In exact arithmetic the Schur complement of Sigma + eps I is >= eps.
-        delta = np.sqrt(np.maximum(schur, self.eps))
+        delta = np.sqrt(np.maximum(schur, eps))
         w = cross / delta[:, None]
         resid = scores - self.prior.mean[rows, cols] - np.einsum("bt,bt->b", lw, alpha)
         a = resid / delta
-        self._W[:, t, :] = w
-        self._alpha[:, t] = a
-        self.mean += a[:, None] * w
-        self.var -= w * w
-        self.t = t + 1
+        if dense and folds is None:
+            self._W[:, t, :] = w
+        else:
+            self._W[rows, count, :] = w
+        self._step[rows, count] = t
+        self._count[rows] = count + 1
+        self._alpha[rows, t] = a
+        if self._cols is not None:
+            w = w[:, self._real]
+            rows = np.ix_(rows, self._real_cols)
+        elif folds is None:
+            rows = slice(None)
+        self.mean[rows] += a[:, None] * w
+        self.var[rows] -= w * w
+
+    def _cov_rows(self, cols, folds) -> np.ndarray:
+        """:meth:`FoldPriors.cov_rows` at W's columns: the same numbers."""
+        prior = self.prior
+        if self._cols is None:
+            return prior.cov_rows(cols, folds)
+        idx = np.arange(prior.size) if folds is None else folds
+        at = prior.centered[idx, cols]
+        d = self._centered if folds is None else self._centered[folds]
+        return prior.scale * (self._scatter[cols] - (prior.coef * at)[:, None] * d)
+
+    def _full_l(self, rows, at, count, t) -> np.ndarray:
+        """W[b, :t, at[b]] with W's zero rows in place, (len(rows), t)."""
+        width = int(count.max()) if count.size else 0
+        lw = np.zeros((rows.size, t))
+        if width:
+            stored = self._W[rows, :width, at]
+            used = np.arange(width)[None, :] < count[:, None]
+            i, k = np.nonzero(used)
+            lw[i, self._step[rows[i], k]] = stored[i, k]
+        return lw
+
+    def _subtract_products(self, cross, rows, lw, count, t) -> None:
+        """cross[i] -= lw[i] @ W_b for instance b = rows[i], W_b its t rows with the zero
+        ones in place: one BLAS call per instance, each the call the whole W would make."""
+        exact = self._exact(t)
+        for i, b in enumerate(rows):
+            n = int(count[i])
+            if n == t and exact:
+                cross[i] -= np.matmul(lw[i], self._W[b, :t])
+                continue
+            full = self._full_W(b, n, t, exact)
+            product = np.matmul(lw[i], full)
+            if not exact:
+                product = product[self._cols]
+                full[:] = 0.0
+            else:
+                full[self._step[b, :n]] = 0.0
+            cross[i] -= product
+
+    def _full_W(self, b, n, t, narrow) -> np.ndarray:
+        """Instance b's W with its zero rows in place (t rows), in a scratch buffer that
+        is zero elsewhere; with all m columns unless ``narrow``."""
+        width = self._W.shape[2] if narrow else self.inert.size
+        if self._scratch.shape[0] < t or self._scratch.shape[1] != width:
+            self._scratch = np.zeros((max(t, 2 * self._scratch.shape[0]), width))
+        full = self._scratch[:t]
+        steps = self._step[b, :n]
+        if narrow:
+            full[steps] = self._W[b, :n]
+        else:
+            full[np.ix_(steps, self._real_cols)] = self._W[b, :n][:, self._real]
+        return full
+
+    def _exact(self, t: int) -> bool:
+        """Whether a product over W's narrow columns rounds as the one over all m
+        columns at t rows (True where W has all m columns)."""
+        if self._cols is None:
+            return True
+        verdict = self._verdict.get(t)
+        if verdict is None:
+            m = self.inert.size
+            if self._probe.shape[0] < t + 1:
+                rows = max(t + 1, min(2 * self._probe.shape[0], m + 1))
+                self._probe = np.random.default_rng(20170529).standard_normal((rows, m))
+            W, lw = self._probe[:t], self._probe[t, :t]
+            full = np.matmul(lw, W)
+            narrow = np.matmul(lw, np.ascontiguousarray(W[:, self._cols]))
+            verdict = bool(np.array_equal(full[self._real_cols], narrow[self._real]))
+            self._verdict[t] = verdict
+        return verdict
 
     def std(self) -> np.ndarray:
         """Posterior standard deviations, with round-off below zero clipped to 0."""
         return np.sqrt(np.maximum(self.var, 0.0))
 
+    def keep(self, folds: np.ndarray) -> None:
+        """Drop every instance but ``folds`` (in that order) from the batch (increasing
+        ``folds`` reuse W's buffer)."""
+        self.prior = self.prior.subset(folds)
+        self.mean = self.mean[folds]
+        self.prior_var = self.prior_var[folds]
+        self.var = self.var[folds]
+        self.eps = self.eps[folds]
+        self.scale = self.scale[folds]
+        if self._cols is not None:
+            self._centered = self._centered[folds]
+        width = int(self._count[folds].max()) if folds.size else 0
+        if (np.diff(folds) > 0).all():  # move rows forward in place: no new buffer
+            for i, b in enumerate(folds):
+                if b != i:
+                    self._W[i, :width] = self._W[b, :width]
+            self._W = self._W[:folds.size]
+        else:
+            W = np.empty((folds.size,) + self._W.shape[1:])
+            W[:, :width] = self._W[folds, :width]
+            self._W = W
+        self._count = self._count[folds]
+        self._step = self._step[folds]
+        self._alpha = self._alpha[folds]
+        self._rows = np.arange(folds.size)
+
     def _grow(self) -> None:
-        size, cap, m = self._W.shape
-        W = np.empty((size, 2 * cap, m))
+        size, cap, width = self._W.shape
+        new = min(2 * cap, self._limit) if cap < self._limit else 2 * cap
+        W = np.empty((size, new, width))
         W[:, :cap] = self._W
-        alpha = np.empty((size, 2 * cap))
-        alpha[:, :cap] = self._alpha
-        self._W, self._alpha = W, alpha
+        step = np.empty((size, new), dtype=np.intp)
+        step[:, :cap] = self._step
+        self._W, self._step = W, step
 
 
 def argmax_untried(values: np.ndarray, tried: np.ndarray, scale: np.ndarray) -> np.ndarray:
@@ -94,7 +301,84 @@ def argmax_untried(values: np.ndarray, tried: np.ndarray, scale: np.ndarray) -> 
     ``values`` (B, m), ``tried`` (B, m) bool, ``scale`` (B,) the rows' score scales.
     Every row must have at least one untried column.
     """
-    masked = np.where(tried, -np.inf, values)
+    return argmax_masked(np.where(tried, -np.inf, values), scale)
+
+
+def argmax_masked(masked: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """:func:`argmax_untried` of values whose tried entries are already -inf."""
     best = masked.max(axis=1)
     tol = TIE_REL * np.maximum(np.abs(best), scale)
     return np.argmax(masked >= (best - tol)[:, None], axis=1)
+
+
+def argmax_sequence(values: np.ndarray, tried: np.ndarray, scale: np.ndarray,
+                    steps: int) -> np.ndarray:
+    """The next ``steps`` picks of :func:`argmax_untried` per row, each pick marked tried
+    before the next, while ``values`` stay as they are: (B, steps), the same columns as
+    calling it ``steps`` times, in O(r log r) per row of r untried columns.
+
+    Every row must have at least ``steps`` untried columns.
+    """
+    out = np.empty((values.shape[0], steps), dtype=np.intp)
+    if not out.size:
+        return out
+    # Rows whose untried values all lie within the tie tolerance of their best: every pick
+    # is the lowest untried index (the usual case: all untried columns equal).
+    best = np.where(tried, -np.inf, values).max(axis=1)
+    low = np.where(tried, np.inf, values).min(axis=1)
+    tied = low >= best - TIE_REL * np.maximum(np.abs(best), scale)
+    if tied.any():
+        out[tied] = np.argsort(tried[tied], axis=1, kind="stable")[:, :steps]
+    for b in np.flatnonzero(~tied):
+        cand = np.flatnonzero(~tried[b])
+        out[b] = _sequence(values[b, cand], cand, float(scale[b]), steps)
+    return out
+
+
+def _sequence(v: np.ndarray, cand: np.ndarray, scale: float, steps: int) -> np.ndarray:
+    """argmax_untried's picks among columns ``cand`` (ascending) of values ``v``.
+
+    The best untried value can only fall as columns are taken, and the threshold
+    best - TIE_REL * max(|best|, scale) falls with it, so a column once within the
+    threshold stays within it: the candidates are a heap of column indices that grows
+    as the best falls, and each pick is the lowest index in it.
+    """
+    desc = np.argsort(-v, kind="stable")
+    vs = v[desc]
+    cols = cand[desc]
+    r = v.size
+    taken = np.zeros(r, dtype=bool)  # by position in ``desc``
+    heap: list[tuple[int, int]] = []
+    picks: list[int] = []
+    top = admitted = 0
+    last = np.inf
+    while len(picks) < steps:
+        while taken[top]:
+            top += 1
+        best = vs[top]
+        threshold = best - TIE_REL * max(abs(best), scale)
+        if threshold > last:  # cannot happen (see above); never rely on it
+            return _sequence_slowly(v, cand, scale, steps, picks)
+        last = threshold
+        while admitted < r and vs[admitted] >= threshold:
+            heapq.heappush(heap, (int(cols[admitted]), admitted))
+            admitted += 1
+        if admitted == r:  # every remaining column ties: lowest index first
+            rest = sorted(c for c, _ in heap)
+            picks.extend(rest[:steps - len(picks)])
+            break
+        col, at = heapq.heappop(heap)
+        taken[at] = True
+        picks.append(col)
+    return np.asarray(picks, dtype=np.intp)
+
+
+def _sequence_slowly(v, cand, scale, steps, picks) -> np.ndarray:
+    """:func:`_sequence` by calling :func:`argmax_untried` once per pick."""
+    tried = np.isin(cand, picks)[None, :]
+    out = list(picks)
+    while len(out) < steps:
+        i = int(argmax_untried(v[None, :], tried, np.array([scale]))[0])
+        tried[0, i] = True
+        out.append(int(cand[i]))
+    return np.asarray(out, dtype=np.intp)

@@ -109,15 +109,27 @@ def loocv(
     Selectors see the scores through :func:`~box_core.selectors.standardise`, so the result
     is the same for scores in any positive unit.
     """
+    return _loocv(scores, times=times, feasible=feasible, selectors=selectors, k=k,
+                  features=features, seed=seed, params=params, failure_rule=failure_rule,
+                  time_grid=time_grid, measure_overhead=measure_overhead, forbidden=forbidden)
+
+
+def _loocv(scores, *, times, feasible, selectors, k, features, seed, params, failure_rule,
+           time_grid, measure_overhead, forbidden, rows=None, fast: bool = True):
+    """:func:`loocv`; ``rows``: hold out only these rows (each still with the prior of
+    all the others; the result's rows are these); ``fast=False``: the unoptimised path
+    (every instance through every step, nothing skipped: the same result, slower)."""
     setup = _Setup.check(scores, times, feasible, selectors, k, features, params,
                          failure_rule, min_rows=3, forbidden=forbidden)
     prior = Prior.fit(setup.Dn)
-    rows = np.arange(setup.D.shape[0])
+    n = setup.D.shape[0]
+    rows = np.arange(n) if rows is None else _row_indices(rows, n, "rows")
 
     def outcomes(held_out):
         return TrainingOutcomes.of(setup.Dn, setup.feas, setup.T, held_out)
 
-    return setup.evaluate(prior.folds, outcomes, rows, seed, time_grid, measure_overhead)
+    return setup.evaluate(prior.folds, outcomes, rows, seed, time_grid, measure_overhead,
+                          fast=fast)
 
 
 def holdout(
@@ -143,6 +155,15 @@ def holdout(
     ``(seed, i)``, and the failure value comes from the whole matrix, as in :func:`loocv`;
     ``forbidden`` (n x m) as in :func:`loocv` (only the ``test`` rows' masks matter).
     """
+    return _holdout(scores, train, test, times=times, feasible=feasible, selectors=selectors,
+                    k=k, features=features, seed=seed, params=params,
+                    failure_rule=failure_rule, time_grid=time_grid,
+                    measure_overhead=measure_overhead, forbidden=forbidden)
+
+
+def _holdout(scores, train, test, *, times, feasible, selectors, k, features, seed, params,
+             failure_rule, time_grid, measure_overhead, forbidden, fast: bool = True):
+    """:func:`holdout`; ``fast=False`` as in :func:`_loocv`."""
     setup = _Setup.check(scores, times, feasible, selectors, k, features, params,
                          failure_rule, min_rows=2, forbidden=forbidden)
     n = setup.D.shape[0]
@@ -161,7 +182,7 @@ def holdout(
                                    np.full(held_out.size, -1))
 
     return setup.evaluate(lambda rows: prior.batch(rows.size), outcomes, test, seed,
-                          time_grid, measure_overhead)
+                          time_grid, measure_overhead, fast=fast)
 
 
 def _row_indices(rows, n: int, name: str) -> np.ndarray:
@@ -250,15 +271,18 @@ class _Setup:
                    names=names, classes=classes, params=params, k=int(k), forbidden=forbidden)
 
     def evaluate(self, fold_priors, fold_outcomes, test, seed, time_grid,
-                 measure) -> LoocvResult:
+                 measure, fast: bool = True) -> LoocvResult:
         """Run every selector on the ``test`` rows; ``fold_priors(rows)`` and
-        ``fold_outcomes(rows)`` give their priors and training outcomes."""
+        ``fold_outcomes(rows)`` give their priors and training outcomes.  ``fast=False``
+        runs every instance through every step with no arithmetic skipped (the same
+        result, up to the measured overhead; what the tests compare the fast path with)."""
         D, T, feas, k = self.D[test], self.T[test], self.feas[test], self.k
         hidden = None if self.forbidden is None else self.forbidden[test]
         folds = _Folds(fold_priors, fold_outcomes, self.Dn[test], T, feas, hidden, self.theta,
-                       test, seed, k)
+                       test, seed, k, fast)
+        run = _run_fast if fast else _run
         runs = {
-            name: _run(cls, dict(self.params.get(name, {})), folds, measure)
+            name: run(cls, dict(self.params.get(name, {})), folds, measure)
             for name, cls in self.classes.items()
         }
         if hidden is not None:
@@ -309,6 +333,7 @@ class _Folds:
     test: np.ndarray
     seed: int
     k: int
+    fast: bool = True
 
     def context(self, rows: np.ndarray, cls: type[Policy]) -> FoldContext:
         held = self.test[rows]
@@ -322,11 +347,13 @@ class _Folds:
             true_times=self.T[rows],
             true_feasible=self.feas[rows],
             forbidden=None if self.hidden is None else self.hidden[rows],
+            skip_inert=self.fast,
         )
 
 
 def _run(cls: type[Policy], kwargs, folds: _Folds, measure):
-    """One selector over the held-out rows: (order (B, k), overhead seconds (B, k))."""
+    """One selector over the held-out rows: (order (B, k), overhead seconds (B, k)),
+    every instance through every step (the unoptimised path)."""
     n, m = folds.Dn.shape
     k = folds.k
     order = np.full((n, k), -1, dtype=np.intp)
@@ -344,6 +371,69 @@ def _run(cls: type[Policy], kwargs, folds: _Folds, measure):
             overhead[rows, t] = (time.perf_counter() - clock) / rows.size
             order[rows, t] = cols
         overhead[rows, 0] += setup / rows.size
+    if not measure:
+        overhead[:] = 0.0
+    return order, overhead
+
+
+#: The fast path's batches keep their per-step buffers (BOX's W) within this many bytes per
+#: entry of the score matrix, or MIN_BATCH_BYTES if that is more (the evaluation holds
+#: about as much per entry anyway: its inputs, and per selector the orders and times).
+BATCH_BYTES_PER_ENTRY = 128
+MIN_BATCH_BYTES = 8 << 20
+
+
+def _run_fast(cls: type[Policy], kwargs, folds: _Folds, measure):
+    """:func:`_run` with the same orders, doing only the work that can change them.
+
+    An instance stops being updated once the policy says it is settled (no observation
+    can change its later proposals: BOX once every untried column is constant, the fixed
+    orders from the start); its remaining proposals are then listed at once.  Settled
+    instances leave the batch when they are half of it.  A batch holds as many instances
+    as the policy's buffers allow within :data:`BATCH_BYTES_PER_ENTRY` (BOX keeps a row of
+    W per observed column that is not constant); policies that never settle run in their
+    usual batches.
+    """
+    n, m = folds.Dn.shape
+    k = folds.k
+    order = np.full((n, k), -1, dtype=np.intp)
+    overhead = np.zeros((n, k))
+    settles = cls.settled is not Policy.settled
+    if settles:
+        live = m - int(folds.priors(folds.test).inert().sum())
+        per = cls.bytes_per_instance(m, live, min(k, live))
+        budget = max(MIN_BATCH_BYTES, BATCH_BYTES_PER_ENTRY * n * m)
+        batch = n if per == 0 else int(max(1, min(n, budget // per)))
+    else:
+        batch = cls.fold_batch(n, m, k)
+    for start in range(0, n, batch):
+        rows = np.arange(start, min(n, start + batch))
+        clock = time.perf_counter()
+        policy = cls(folds.context(rows, cls), **kwargs)
+        overhead[rows, 0] = (time.perf_counter() - clock) / rows.size
+        here = rows  # the test row of each instance of the batch
+        stepping = np.ones(rows.size, dtype=bool)  # not settled yet
+        for t in range(k):
+            clock = time.perf_counter()
+            done = stepping & policy.settled() if settles else None
+            if done is not None and done.any():
+                at = np.flatnonzero(done)
+                order[here[at], t:] = policy.remaining(at, k - t)
+                stepping[at] = False
+                overhead[here[at], t:] += (time.perf_counter() - clock) / (at.size * (k - t))
+                if not stepping.any():
+                    break
+                clock = time.perf_counter()
+                if 2 * stepping.sum() <= stepping.size:  # the settled ones leave
+                    kept = np.flatnonzero(stepping)
+                    policy.keep(kept)
+                    here, stepping = here[kept], stepping[kept]
+            cols = policy.propose()
+            policy.update(cols, folds.Dn[here, cols])
+            live_rows = here[stepping]
+            overhead[live_rows, t] += (time.perf_counter() - clock) / live_rows.size
+            order[live_rows, t] = cols[stepping]
+        del policy  # its buffers go before the next batch's are made
     if not measure:
         overhead[:] = 0.0
     return order, overhead

@@ -122,12 +122,30 @@ class FoldPriors:
         d = self.centered
         return self.scale * (np.diagonal(self.scatter)[None, :] - self.coef * d * d)
 
-    def cov_rows(self, cols: np.ndarray) -> np.ndarray:
-        """Row ``cols[b]`` of fold b's covariance, for every fold b: (B, m) in O(B m)."""
-        d = self.centered
-        idx = np.arange(self.size)
-        rows = self.scatter[cols] - (self.coef * d[idx, cols])[:, None] * d
+    def cov_rows(self, cols: np.ndarray, folds: np.ndarray | None = None) -> np.ndarray:
+        """Row ``cols[b]`` of fold b's covariance, for every fold b: (B, m) in O(B m);
+        with ``folds``, for those folds only (``cols`` then has one entry per fold given)."""
+        d = self.centered if folds is None else self.centered[folds]
+        at = d[np.arange(d.shape[0]), cols]
+        rows = self.scatter[cols] - (self.coef * at)[:, None] * d
         return self.scale * rows
+
+    def inert(self) -> np.ndarray:
+        """(m,) bool: columns whose covariance row and column are exactly zero in every
+        fold of the batch (constant columns: every training row and every held-out row
+        has the same score there).  Conditioning on such a column changes no posterior
+        mean or variance, and their own posterior never moves from the prior mean."""
+        nonzero = self.scatter != 0
+        zero = ~(nonzero.any(axis=0) | nonzero.any(axis=1))
+        if self.coef != 0:
+            zero &= ~(self.centered != 0).any(axis=0)
+        return zero
+
+    def subset(self, folds: np.ndarray) -> FoldPriors:
+        """The same priors for the given folds only (the scatter matrix is shared)."""
+        return FoldPriors(mean=self.mean[folds], scatter=self.scatter, scale=self.scale,
+                          centered=self.centered[folds], coef=self.coef,
+                          n_train=self.n_train)
 
     def jitter(self) -> np.ndarray:
         """Per-fold diagonal jitter (B,), relative to the largest prior variance."""

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
@@ -22,7 +22,12 @@ from scipy.spatial.distance import cdist
 from scipy.special import ndtr
 
 from box_core import validation
-from box_core.gaussian import GaussianPosterior, argmax_untried
+from box_core.gaussian import (
+    GaussianPosterior,
+    argmax_masked,
+    argmax_sequence,
+    argmax_untried,
+)
 from box_core.prior import FoldPriors, Prior
 
 SELECTORS: dict[str, type[Policy]] = {}
@@ -54,6 +59,9 @@ class FoldContext:
     ``numpy.random.default_rng``, one per instance; ``outcomes`` are the training rows' times
     and feasibility (for ``eips``); ``forbidden`` (B, m) marks columns an instance may never
     try (leave-one-out without leakage), which every policy treats as tried from the start.
+    ``skip_inert=False`` makes the posterior condition on constant columns in full rather
+    than skipping the arithmetic that cannot change it (the same choices, slower; the
+    unoptimised path the tests compare against).
     """
 
     prior: FoldPriors
@@ -65,10 +73,25 @@ class FoldContext:
     true_times: np.ndarray | None = None
     true_feasible: np.ndarray | None = None
     forbidden: np.ndarray | None = None
+    skip_inert: bool = True
 
     @property
     def size(self) -> int:
         return self.prior.size
+
+    def subset(self, folds: np.ndarray) -> FoldContext:
+        """This context for the instances ``folds`` only, in that order."""
+
+        def rows(a):
+            return None if a is None else a[folds]
+
+        outcomes = self.outcomes
+        if outcomes is not None:
+            outcomes = replace(outcomes, held_out=outcomes.held_out[folds])
+        return replace(self, prior=self.prior.subset(folds),
+                       seeds=[self.seeds[i] for i in folds], true_scores=rows(self.true_scores),
+                       outcomes=outcomes, true_times=rows(self.true_times),
+                       true_feasible=rows(self.true_feasible), forbidden=rows(self.forbidden))
 
     @property
     def m(self) -> int:
@@ -106,6 +129,30 @@ class Policy:
         self.tried[self._rows, cols] = True
         self.t += 1
 
+    # Leave-one-out evaluation asks these to stop updating instances early.
+
+    def settled(self) -> np.ndarray:
+        """(B,) bool: instances whose later proposals no observation can change any more,
+        so that :meth:`remaining` can list them now."""
+        return np.zeros(self.ctx.size, dtype=bool)
+
+    def remaining(self, folds: np.ndarray, steps: int) -> np.ndarray:
+        """The next ``steps`` proposals of the settled instances ``folds``, (F, steps):
+        what ``steps`` rounds of propose and update would give them."""
+        raise NotImplementedError
+
+    def keep(self, folds: np.ndarray) -> None:
+        """Drop every instance but ``folds`` (in that order) from the batch."""
+        self.ctx = self.ctx.subset(folds)
+        self.tried = self.tried[folds]
+        self._rows = np.arange(folds.size)
+
+    @classmethod
+    def bytes_per_instance(cls, m: int, live: int, rows: int) -> int:
+        """Bytes of buffers an instance holds with ``rows`` observations stored, of
+        ``live`` columns that are not inert (see :class:`GaussianPosterior`) out of m."""
+        return 0
+
 
 class _OrderPolicy(Policy):
     """Tries columns in a fixed per-instance order, skipping any already tried."""
@@ -123,6 +170,20 @@ class _OrderPolicy(Policy):
             if not stale.any():
                 return cols
             nxt[stale] += 1
+
+    def settled(self) -> np.ndarray:
+        return np.ones(self.ctx.size, dtype=bool)  # the order is fixed from the start
+
+    def remaining(self, folds: np.ndarray, steps: int) -> np.ndarray:
+        order = self._order[folds]
+        open_ = ~np.take_along_axis(self.tried[folds], order, axis=1)
+        first = np.argsort(~open_, axis=1, kind="stable")[:, :steps]  # untried, in order
+        return np.take_along_axis(order, first, axis=1)
+
+    def keep(self, folds: np.ndarray) -> None:
+        super().keep(folds)
+        self._order = self._order[folds]
+        self._next = self._next[folds]
 
 
 def _descending(values: np.ndarray) -> np.ndarray:
@@ -187,7 +248,10 @@ class Box(Policy):
         if not (math.isfinite(c) and c >= 0):
             raise ValueError(f"c must be a finite number >= 0, got {c!r}")
         self.c = float(c)
-        self.posterior = GaussianPosterior(ctx.prior, capacity=ctx.horizon or 16)
+        self.posterior = GaussianPosterior(ctx.prior, capacity=ctx.horizon or 16,
+                                           skip_inert=ctx.skip_inert)
+        # untried columns whose posterior an observation can still move, per instance
+        self._open = (~(self.tried | self.posterior.inert)).sum(axis=1)
 
     @classmethod
     def fold_batch(cls, n: int, m: int, k: int) -> int:
@@ -195,22 +259,44 @@ class Box(Policy):
         # stepping, and bounds memory whatever n is.
         return int(max(1, min(n, (8 << 20) // (8 * k * m))))
 
+    @classmethod
+    def bytes_per_instance(cls, m: int, live: int, rows: int) -> int:
+        return 8 * min(m, live + 6) * rows  # W, at most 6 columns beyond the live ones
+
     def coefficient(self) -> float:
         return self.c
 
     def variance_factor(self) -> float:
         return 1.0
 
-    def propose(self) -> np.ndarray:
+    def values(self) -> np.ndarray:
+        """The upper confidence bounds that :meth:`propose` maximises, (B, m)."""
         post = self.posterior
         factor = self.variance_factor()
         std = post.std() if factor == 1.0 else np.sqrt(factor * np.maximum(post.var, 0.0))
-        ucb = post.mean + self.coefficient() * std
-        return argmax_untried(ucb, self.tried, post.scale)
+        return post.mean + self.coefficient() * std
+
+    def propose(self) -> np.ndarray:
+        return argmax_untried(self.values(), self.tried, self.posterior.scale)
 
     def update(self, cols: np.ndarray, scores: np.ndarray) -> None:
         super().update(cols, scores)
         self.posterior.observe(cols, scores)
+        self._open -= ~self.posterior.inert[cols]
+
+    def settled(self) -> np.ndarray:
+        # Every untried column is inert: its posterior is the prior mean with zero
+        # variance whatever is observed, so its bound is that mean from now on.
+        return self._open == 0
+
+    def remaining(self, folds: np.ndarray, steps: int) -> np.ndarray:
+        return argmax_sequence(self.values()[folds], self.tried[folds],
+                               self.posterior.scale[folds], steps)
+
+    def keep(self, folds: np.ndarray) -> None:
+        super().keep(folds)
+        self.posterior.keep(folds)
+        self._open = self._open[folds]
 
 
 @register("pembo")
@@ -292,8 +378,10 @@ class Doo(Policy):
         if not (math.isfinite(lam) and lam >= 0):
             raise ValueError(f"lam must be a finite number >= 0, got {lam!r}")
         self.lam = float(lam)
-        self._dist = cdist(ctx.features, ctx.features)
-        self._bound = np.full((ctx.size, ctx.m), np.inf)
+        self._reach = self.lam * cdist(ctx.features, ctx.features)  # lam * ||theta_i - theta_j||
+        # the bounds, with tried columns at -inf (as argmax_untried masks them)
+        self._bound = np.where(self.tried, -np.inf, np.inf)
+        self._work = np.empty((ctx.size, ctx.m))
         first = np.array([np.random.default_rng(s).integers(ctx.m) for s in ctx.seeds])
         # a forbidden first pick moves on to the next allowed column (cyclically)
         shift = np.argmin(np.take_along_axis(
@@ -301,14 +389,22 @@ class Doo(Policy):
         self._first = (first + shift) % ctx.m
         self._scale = np.zeros(ctx.size)
 
+    @classmethod
+    def fold_batch(cls, n: int, m: int, k: int) -> int:
+        # every step reads and writes each row's m bounds: batches that stay in cache
+        return int(max(1, min(n, (2 << 20) // (8 * m))))
+
     def propose(self) -> np.ndarray:
         if self.t == 0:
             return self._first.copy()
-        return argmax_untried(self._bound, self.tried, self._scale)
+        return argmax_masked(self._bound, self._scale)
 
     def update(self, cols: np.ndarray, scores: np.ndarray) -> None:
         super().update(cols, scores)
-        np.minimum(self._bound, scores[:, None] + self.lam * self._dist[cols], out=self._bound)
+        work = np.take(self._reach, cols, axis=0, out=self._work)
+        work += scores[:, None]  # scores + lam * distance
+        np.minimum(self._bound, work, out=self._bound)
+        self._bound[self._rows, cols] = -np.inf
         self._scale = np.maximum(self._scale, np.abs(scores))
 
 
@@ -405,13 +501,13 @@ class Eips(Policy):
         self._FT = np.ascontiguousarray(out.feasible.T)  # (m, n): a column's rows, contiguous
         self._threshold = out.threshold
         F = out.feasible.astype(np.float64)
-        self._Fm = F
         n = F.shape[0]
         own = out.held_out >= 0
         mine = out.held_out[own]
         self._w = np.ones((ctx.size, n))
         self._w[np.flatnonzero(own), mine] = 0.0
         self._live = self._w > 0  # rows whose weight can still change
+        self._own = np.where(own, out.held_out, -1)  # each instance's own row, or -1
 
         def fold_sums(values):  # column sums over each fold's training rows, (B, m)
             sums = np.repeat(values.sum(axis=0)[None, :], ctx.size, axis=0)
@@ -422,20 +518,44 @@ class Eips(Policy):
         self._mass = self._w.sum(axis=1)
         self._pbar = self._sums / np.maximum(self._mass, 1.0)[:, None]
         logT = np.log(np.maximum(out.times, TIME_FLOOR))
-        self._L = (F * logT, (1.0 - F) * logT)  # log times of feasible / infeasible entries
-        self._lsums = [fold_sums(L) for L in self._L]  # their weighted column sums, (B, m)
+        L = (F * logT, (1.0 - F) * logT)  # log times of feasible / infeasible entries
+        self._lsums = [fold_sums(x) for x in L]  # their weighted column sums, (B, m)
         ok_n, fail_n = self._sums, self._mass[:, None] - self._sums
         mean_l = fold_sums(logT) / np.maximum(self._mass, 1.0)[:, None]
         with np.errstate(divide="ignore", invalid="ignore"):
             self._g = (np.where(ok_n > 0, self._lsums[0] / ok_n, mean_l),
                        np.where(fail_n > 0, self._lsums[1] / fail_n, mean_l))
         self._best = np.full(ctx.size, -np.inf)
-        self.posterior = GaussianPosterior(ctx.prior, capacity=ctx.horizon or 16)
+        self.posterior = GaussianPosterior(ctx.prior, capacity=ctx.horizon or 16,
+                                           skip_inert=ctx.skip_inert)
+        # Idle columns: constant, and infeasible on every training row.  In leave-one-out
+        # (every instance's own row among the outcomes) the held-out row fails there too,
+        # so a try changes no weight, sum, best score or posterior, and the column's gain
+        # is 0 (p = 0 before a plan is found; after, the posterior there is a failure with
+        # zero variance).  Only the other columns' sums are kept, column by column the
+        # same numbers.
+        idle = self.posterior.inert & ~out.feasible.any(axis=0)
+        if not (out.held_out >= 0).all():
+            idle[:] = False
+        self._idle = idle
+        self._open = (~(self.tried | idle)).sum(axis=1)
+        self._cols = None if not idle.any() else np.flatnonzero(~idle)
+        if self._cols is not None:
+            kept = self._cols
+            F, L = F[:, kept], tuple(x[:, kept] for x in L)
+            self._sums, self._pbar = self._sums[:, kept], self._pbar[:, kept]
+            self._lsums = [sums[:, kept] for sums in self._lsums]
+            self._g = tuple(g[:, kept] for g in self._g)
+        # F, L_ok and L_fail side by side: one sparse product updates the three sums
+        # (column by column the same numbers as three products)
+        self._FL = np.ascontiguousarray(np.concatenate([F, *L], axis=1))
 
     fold_batch = Box.fold_batch
+    bytes_per_instance = Box.bytes_per_instance
 
     def expected(self) -> tuple[np.ndarray, np.ndarray]:
-        """(p, tau), each (B, m): probability of feasibility and expected time per column."""
+        """(p, tau), each (B, m): probability of feasibility and expected time per column
+        (of the columns that are not idle only, where some are)."""
         p = (self._sums + self.a * self._pbar) / (self._mass + self.a)[:, None]
         p = np.clip(p, 0.0, 1.0)
         b = self.b
@@ -447,38 +567,75 @@ class Eips(Policy):
         return p, tau
 
     def propose(self) -> np.ndarray:
+        return argmax_untried(self.values(), self.tried, np.zeros(self.ctx.size))
+
+    def values(self) -> np.ndarray:
+        """Expected gain per expected second, (B, m): what :meth:`propose` maximises."""
         gain, tau = self.expected()
         found = np.flatnonzero(np.isfinite(self._best))
+        kept = self._cols
         if found.size:
             post = self.posterior
-            std = np.sqrt(np.maximum(post.var[found], 0.0))
-            gap = post.mean[found] - self._best[found, None]
+            at = found if kept is None else np.ix_(found, kept)
+            std = np.sqrt(np.maximum(post.var[at], 0.0))
+            gap = post.mean[at] - self._best[found, None]
             with np.errstate(divide="ignore", invalid="ignore"):
                 z = gap / std
             zc = np.clip(np.nan_to_num(z), -Z_LIMIT, Z_LIMIT)  # no subnormals, no overflow
             ei = std * (zc * ndtr(zc) + np.exp(-0.5 * zc * zc) / _SQRT_2PI)
             ei = np.where(z > -Z_LIMIT, ei, 0.0)
             gain[found] = np.where((std > 0) & (z < Z_LIMIT), ei, np.maximum(gap, 0.0))
-        return argmax_untried(gain / tau, self.tried, np.zeros(self.ctx.size))
+        if kept is None:
+            return gain / tau
+        out = np.zeros((self.ctx.size, self.ctx.m))
+        out[:, kept] = gain / tau
+        return out
 
     def update(self, cols: np.ndarray, scores: np.ndarray) -> None:
         super().update(cols, scores)
         self.posterior.observe(cols, scores)
         ok = scores > self._threshold
         self._best = np.where(ok, np.maximum(self._best, scores), self._best)
-        differs = self._FT[cols] != ok[:, None]
-        differs &= self._live
+        busy = np.flatnonzero(ok | ~self._idle[cols])  # an idle try changes no weight
+        differs = self._FT[cols[busy]] != ok[busy, None]
+        if self.rho == 0.0:
+            differs &= self._live[busy]
+        else:  # weights never reach 0: only the own row's (0 from the start) stays put
+            own = self._own[busy]
+            mine = np.flatnonzero(own >= 0)
+            differs[mine, own[mine]] = False
         b, r = np.divmod(np.flatnonzero(differs), differs.shape[1])
+        b = busy[b]
         if b.size:
             change = self._w[b, r] * (self.rho - 1.0)
             self._w[b, r] += change
             if self.rho == 0.0:
                 self._live[b, r] = False
             delta = sparse.csr_matrix((change, (b, r)), shape=self._w.shape)
-            self._sums += delta @ self._Fm
-            for sums, L in zip(self._lsums, self._L, strict=True):
-                sums += delta @ L
+            added = delta @ self._FL
+            width = self._sums.shape[1]
+            self._sums += added[:, :width]
+            self._lsums[0] += added[:, width:2 * width]
+            self._lsums[1] += added[:, 2 * width:]
             self._mass += np.bincount(b, weights=change, minlength=self.ctx.size)
+        self._open -= ~self._idle[cols]
+
+    def settled(self) -> np.ndarray:
+        return self._open == 0  # every untried column is idle: all gains stay 0
+
+    def remaining(self, folds: np.ndarray, steps: int) -> np.ndarray:
+        return argmax_sequence(self.values()[folds], self.tried[folds],
+                               np.zeros(folds.size), steps)
+
+    def keep(self, folds: np.ndarray) -> None:
+        super().keep(folds)
+        self.posterior.keep(folds)
+        self._w, self._live, self._own = self._w[folds], self._live[folds], self._own[folds]
+        self._sums, self._mass, self._pbar = self._sums[folds], self._mass[folds], \
+            self._pbar[folds]
+        self._lsums = [sums[folds] for sums in self._lsums]
+        self._g = tuple(g[folds] for g in self._g)
+        self._best, self._open = self._best[folds], self._open[folds]
 
 
 _SQRT_2PI = math.sqrt(2.0 * math.pi)

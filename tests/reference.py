@@ -198,3 +198,65 @@ def eips_order(train, feasible, times, truth, k, prior_rows=1.0, mismatch=0.1, t
         idx.append(j)
         obs.append(truth[j])
     return idx
+
+
+class BatchedPosterior:
+    """box_core's batched incremental conditioning as it was before the leave-one-out fast
+    path (``box_core.gaussian.GaussianPosterior`` at commit 6c488f3), kept verbatim: every
+    observation runs the full O(t m) update over all m columns, for every instance.  The
+    tests compare the current posterior with it bit for bit."""
+
+    def __init__(self, prior, capacity=16):
+        self.prior = prior
+        size, m = prior.size, prior.m
+        self.mean = prior.mean.copy()
+        self.prior_var = prior.diag()
+        self.var = self.prior_var.copy()
+        self.eps = prior.jitter()
+        self.scale = np.sqrt(np.maximum(self.prior_var.max(axis=1), 0.0))
+        self.t = 0
+        self._W = np.empty((size, max(1, capacity), m))
+        self._alpha = np.empty((size, max(1, capacity)))
+        self._rows = np.arange(size)
+
+    def observe(self, cols, scores):
+        t = self.t
+        if t == self._W.shape[1]:
+            size, cap, m = self._W.shape
+            W = np.empty((size, 2 * cap, m))
+            W[:, :cap] = self._W
+            alpha = np.empty((size, 2 * cap))
+            alpha[:, :cap] = self._alpha
+            self._W, self._alpha = W, alpha
+        rows = self._rows
+        W = self._W[:, :t, :]
+        alpha = self._alpha[:, :t]
+        lw = W[rows, :, cols]
+        cross = self.prior.cov_rows(cols)
+        if t:
+            cross -= np.matmul(lw[:, None, :], W)[:, 0, :]
+        schur = self.prior_var[rows, cols] + self.eps - np.einsum("bt,bt->b", lw, lw)
+        delta = np.sqrt(np.maximum(schur, self.eps))
+        w = cross / delta[:, None]
+        resid = scores - self.prior.mean[rows, cols] - np.einsum("bt,bt->b", lw, alpha)
+        a = resid / delta
+        self._W[:, t, :] = w
+        self._alpha[:, t] = a
+        self.mean += a[:, None] * w
+        self.var -= w * w
+        self.t = t + 1
+
+
+def argmax_sequence(values, tried, scale, steps):
+    """What ``steps`` calls of the tie-tolerant argmax pick from fixed ``values`` (B, m),
+    marking each pick tried: one :func:`pick` per step and row."""
+    out = []
+    for b in range(values.shape[0]):
+        mask = tried[b].copy()
+        row = []
+        for _ in range(steps):
+            j = pick(values[b], mask, scale[b])
+            mask[j] = True
+            row.append(j)
+        out.append(row)
+    return np.array(out, dtype=np.intp).reshape(values.shape[0], steps)
