@@ -65,6 +65,9 @@ class GaussianPosterior:
     #: Batches at least this large keep W's columns narrow (a live selector, a batch of
     #: one, would spend as much on the checks as it saves).
     NARROW_BATCH = 4
+    #: The check of the narrow product at t rows multiplies a t x m random matrix; beyond
+    #: this many entries it is not made and the product takes all m columns.
+    PROBE_ENTRIES = 1 << 22
 
     def __init__(self, prior: FoldPriors, capacity: int = 16, skip_inert: bool = True):
         self.prior = prior
@@ -243,10 +246,13 @@ class GaussianPosterior:
         if self._cols is None:
             return True
         verdict = self._verdict.get(t)
+        if verdict is None and (t + 1) * self.inert.size > self.PROBE_ENTRIES:
+            verdict = self._verdict[t] = False
         if verdict is None:
             m = self.inert.size
             if self._probe.shape[0] < t + 1:
-                rows = max(t + 1, min(2 * self._probe.shape[0], m + 1))
+                rows = max(t + 1, min(2 * self._probe.shape[0], m + 1,
+                                      self.PROBE_ENTRIES // m))
                 self._probe = np.random.default_rng(20170529).standard_normal((rows, m))
             W, lw = self._probe[:t], self._probe[t, :t]
             full = np.matmul(lw, W)

@@ -400,8 +400,10 @@ def _run_fast(cls: type[Policy], kwargs, folds: _Folds, measure):
     overhead = np.zeros((n, k))
     settles = cls.settled is not Policy.settled
     if settles:
-        live = m - int(folds.priors(folds.test).inert().sum())
-        per = cls.bytes_per_instance(m, live, min(k, live))
+        per = cls.bytes_per_instance(m, m, k)
+        if per:
+            live = m - int(folds.priors(folds.test).inert().sum())
+            per = cls.bytes_per_instance(m, live, min(k, live))
         budget = max(MIN_BATCH_BYTES, BATCH_BYTES_PER_ENTRY * n * m)
         batch = n if per == 0 else int(max(1, min(n, budget // per)))
     else:
