@@ -73,6 +73,23 @@ def _place(F, T, R, c):  # pragma: no cover (compiled)
 
 
 @njit(cache=True)
+def _off_aabb(x, y, z, r, c, e):  # pragma: no cover (compiled)
+    """Does the sphere (x, y, z; r) miss the axis-aligned box (centre c, half extents e)
+    that holds a world box?  (A first test, tighter than the box's circumsphere.)"""
+    acc = 0.0
+    d = abs(x - c[0]) - e[0]
+    if d > 0.0:
+        acc += d * d
+    d = abs(y - c[1]) - e[1]
+    if d > 0.0:
+        acc += d * d
+    d = abs(z - c[2]) - e[2]
+    if d > 0.0:
+        acc += d * d
+    return acc >= r * r
+
+
+@njit(cache=True)
 def _sphere_box(p, r, c, R, h):  # pragma: no cover (compiled)
     """Does the sphere (p, r) reach into the box (centre c, rotation R, half extents h)?"""
     d0, d1, d2 = p[0] - c[0], p[1] - c[1], p[2] - c[2]
@@ -193,52 +210,415 @@ def sphere_hit(frames, n, in_frame, in_c, in_r, box_c, box_R, box_h, box_r,
 
 
 @njit(cache=True)
-def first_uncertain(frames, start, pre, grp_frame, grp_c, grp_r, grp_lo, grp_hi, grp_world,
-                    sph_c, sph_r, pair_a, pair_b, rbox_frame, rbox_T, rbox_h, rbox_r,
-                    rbox_pair_b, rbox_pair_g, box_c, box_R, box_h, box_r, og_c, og_r, og_lo,
-                    og_hi, obs_c, obs_r):  # pragma: no cover (compiled)
-    """The first configuration n >= ``start`` (its frames: frames[n], F × 3 × 4) that may
-    collide, or N when none may; ``pre[n]`` marks configurations already in doubt.
-
-    Groups with ``grp_world`` are tested against the world's boxes and sphere groups
-    (og_*: bounding sphere and range of obs_c / obs_r); the group pairs (pair_a[k],
-    pair_b[k]) against each other; the robot boxes against the world, and robot box
-    rbox_pair_b[k] against group rbox_pair_g[k].  Spheres of group g are
-    sph_c[grp_lo[g]:grp_hi[g]] in the group's frame.
-    """
-    G = grp_c.shape[0]
-    S = sph_c.shape[0]
-    gw = np.empty((G, 3))
-    sw = np.empty((S, 3))
+def inner_hit_rbox(frames, n, in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_solid,
+                   depth):  # pragma: no cover (compiled)
+    """Does an inner sphere s reach at least ``depth`` into a robot box b it is tested
+    against (``in_rbox[s, b]``; the box's true half extents ``rbox_solid``) at
+    configuration n?  True is a proof of collision, as for :func:`sphere_hit`."""
+    p = np.empty(3)
     Rw = np.empty((3, 3))
     cw = np.empty(3)
-    for n in range(start, frames.shape[0]):
-        if pre[n]:
-            return n
+    for b in range(rbox_T.shape[0]):
+        _place(frames[n, rbox_frame[b]], rbox_T[b], Rw, cw)
+        rb = math.sqrt(rbox_solid[b, 0] ** 2 + rbox_solid[b, 1] ** 2 + rbox_solid[b, 2] ** 2)
+        for s in range(in_c.shape[0]):
+            reach = in_r[s] - depth
+            if not in_rbox[s, b] or reach <= 0.0:
+                continue
+            _apply(frames[n, in_frame[s]], in_c[s], p)
+            dx, dy, dz = p[0] - cw[0], p[1] - cw[1], p[2] - cw[2]
+            far = reach + rb
+            if dx * dx + dy * dy + dz * dz >= far * far:
+                continue
+            if _sphere_box(p, reach, cw, Rw, rbox_solid[b]):
+                return True
+    return False
+
+
+@njit(cache=True)
+def _support_hull(F, hull, lo, hi, d, out):  # pragma: no cover (compiled)
+    """The vertex of hull[lo:hi] (points in frame F, 3 × 4) furthest along the world
+    direction d, in world coordinates (``out``)."""
+    l0 = F[0, 0] * d[0] + F[1, 0] * d[1] + F[2, 0] * d[2]
+    l1 = F[0, 1] * d[0] + F[1, 1] * d[1] + F[2, 1] * d[2]
+    l2 = F[0, 2] * d[0] + F[1, 2] * d[1] + F[2, 2] * d[2]
+    best, arg = -np.inf, lo
+    for v in range(lo, hi):
+        s = hull[v, 0] * l0 + hull[v, 1] * l1 + hull[v, 2] * l2
+        if s > best:
+            best, arg = s, v
+    _apply(F, hull[arg], out)
+
+
+@njit(cache=True)
+def _support_box(c, R, h, d, out):  # pragma: no cover (compiled)
+    """The corner of the box (centre c, rotation R, half extents h) furthest along d."""
+    out[0], out[1], out[2] = c[0], c[1], c[2]
+    for j in range(3):
+        e = h[j] if R[0, j] * d[0] + R[1, j] * d[1] + R[2, j] * d[2] >= 0.0 else -h[j]
+        for i in range(3):
+            out[i] += e * R[i, j]
+
+
+@njit(cache=True)
+def _nearest_on_simplex(W, k, v, lam):  # pragma: no cover (compiled)
+    """The point of the convex hull of W[:k] (k <= 4 points) nearest the origin, into v;
+    lam[:k] its barycentric coordinates (zero for points it does not need).  Every subset
+    whose affine hull's nearest point lies inside it is tried; the nearest such point is
+    the answer (the nearest point of the hull lies inside one of its faces)."""
+    best = np.inf
+    Q = np.empty((3, 3))
+    A = np.empty((3, 3))
+    rhs = np.empty(3)
+    mu = np.empty(3)
+    p = np.empty(3)
+    idx = np.empty(4, dtype=np.int64)
+    for mask in range(1, 1 << k):
+        m = 0
+        for i in range(k):
+            if mask & (1 << i):
+                idx[m] = i
+                m += 1
+        o = idx[0]
+        for a in range(m - 1):
+            for c in range(3):
+                Q[a, c] = W[idx[a + 1], c] - W[o, c]
+        # normal equations (Q Q^T) mu = -Q p0, solved by Gaussian elimination
+        ok = True
+        for a in range(m - 1):
+            for b in range(m - 1):
+                A[a, b] = Q[a, 0] * Q[b, 0] + Q[a, 1] * Q[b, 1] + Q[a, 2] * Q[b, 2]
+            rhs[a] = -(Q[a, 0] * W[o, 0] + Q[a, 1] * W[o, 1] + Q[a, 2] * W[o, 2])
+        for a in range(m - 1):
+            piv = a
+            for b in range(a + 1, m - 1):
+                if abs(A[b, a]) > abs(A[piv, a]):
+                    piv = b
+            if abs(A[piv, a]) < 1e-18:
+                ok = False
+                break
+            if piv != a:
+                for c in range(m - 1):
+                    A[a, c], A[piv, c] = A[piv, c], A[a, c]
+                rhs[a], rhs[piv] = rhs[piv], rhs[a]
+            for b in range(a + 1, m - 1):
+                f = A[b, a] / A[a, a]
+                for c in range(a, m - 1):
+                    A[b, c] -= f * A[a, c]
+                rhs[b] -= f * rhs[a]
+        if not ok:
+            continue
+        for a in range(m - 2, -1, -1):
+            t = rhs[a]
+            for c in range(a + 1, m - 1):
+                t -= A[a, c] * mu[c]
+            mu[a] = t / A[a, a]
+        first = 1.0
+        inside = True
+        for a in range(m - 1):
+            first -= mu[a]
+            if mu[a] < 0.0:
+                inside = False
+        if first < 0.0 or not inside:
+            continue
+        for c in range(3):
+            p[c] = W[o, c]
+            for a in range(m - 1):
+                p[c] += mu[a] * Q[a, c]
+        d = p[0] * p[0] + p[1] * p[1] + p[2] * p[2]
+        if d < best:
+            best = d
+            v[0], v[1], v[2] = p[0], p[1], p[2]
+            for i in range(k):
+                lam[i] = 0.0
+            lam[o] = first
+            for a in range(m - 1):
+                lam[idx[a + 1]] = mu[a]
+    return best < np.inf
+
+
+@njit(cache=True)
+def _apart(Fa, hull, alo, ahi, Fb, blo, bhi, c, R, h, gap):  # pragma: no cover (compiled)
+    """Are two convex sets certainly at least ``gap`` apart?  A is the hull of
+    hull[alo:ahi] in frame Fa; B is the hull of hull[blo:bhi] in frame Fb, or, when
+    blo == bhi, the box (c, R, h).
+
+    GJK (Gilbert, Johnson, Keerthi) looks for the point v of A - B nearest the origin;
+    the answer is True only when every point of A - B projects at least ``gap`` onto v
+    (the support points of both sets along v, compared directly), so True is a proof
+    whatever the iteration did.  False means "not shown"."""
+    boxed = blo == bhi
+    a = np.empty(3)
+    b = np.empty(3)
+    v = np.empty(3)
+    d = np.empty(3)
+    W = np.empty((4, 3))
+    lam = np.empty(4)
+    # start from the difference of the points of A and B furthest towards each other
+    for i in range(3):
+        d[i] = (c[i] if boxed else Fb[i, 3]) - Fa[i, 3]
+    _support_hull(Fa, hull, alo, ahi, d, a)
+    for i in range(3):
+        d[i] = -d[i]
+    if boxed:
+        _support_box(c, R, h, d, b)
+    else:
+        _support_hull(Fb, hull, blo, bhi, d, b)
+    for i in range(3):
+        v[i] = a[i] - b[i]
+    k = 0
+    for _ in range(32):
+        vv = v[0] * v[0] + v[1] * v[1] + v[2] * v[2]
+        if vv < gap * gap:  # v is a point of A - B: the sets are closer than gap
+            return False
+        for i in range(3):
+            d[i] = -v[i]
+        _support_hull(Fa, hull, alo, ahi, d, a)
+        if boxed:
+            _support_box(c, R, h, v, b)
+        else:
+            _support_hull(Fb, hull, blo, bhi, v, b)
+        # w = a - b is the point of A - B with the least projection onto v
+        vw = v[0] * (a[0] - b[0]) + v[1] * (a[1] - b[1]) + v[2] * (a[2] - b[2])
+        if vw >= gap * math.sqrt(vv):
+            return True
+        if vv - vw <= 1e-12 * vv or k == 4:  # converged (or degenerate): not shown
+            return False
+        for i in range(3):
+            W[k, i] = a[i] - b[i]
+        k += 1
+        if not _nearest_on_simplex(W, k, v, lam):
+            return False
+        m = 0  # keep the points the nearest point needs
+        for i in range(k):
+            if lam[i] > 0.0:
+                W[m, 0], W[m, 1], W[m, 2] = W[i, 0], W[i, 1], W[i, 2]
+                m += 1
+        k = m
+    return False
+
+
+@njit(cache=True)
+def _face_gap(ca, Ra, ha, cb, Rb, hb):  # pragma: no cover (compiled)
+    """How far apart two boxes are along the best of their six face normals (negative
+    when none separates them).  pybullet's box-box contacts test these axes exactly."""
+    Rm, Am, t = _relative(ca, Ra, cb, Rb, 0.0)
+    best = -np.inf
+    for i in range(3):
+        best = max(best, abs(t[i]) - (ha[i] + hb[0] * Am[i, 0] + hb[1] * Am[i, 1]
+                                      + hb[2] * Am[i, 2]))
+    for j in range(3):
+        best = max(best, abs(t[0] * Rm[0, j] + t[1] * Rm[1, j] + t[2] * Rm[2, j])
+                   - (ha[0] * Am[0, j] + ha[1] * Am[1, j] + ha[2] * Am[2, j] + hb[j]))
+    return best
+
+
+@njit(cache=True)
+def _chain(q, base, origins, out):  # pragma: no cover (compiled)
+    """:func:`arm_frames` of one configuration q (7,) into out (8, 3, 4)."""
+    out[0] = base
+    for k in range(7):
+        c, s = math.cos(q[k]), math.sin(q[k])
+        o = origins[k]
+        for i in range(3):
+            p0, p1, p2 = out[k, i, 0], out[k, i, 1], out[k, i, 2]
+            a0 = p0 * o[0, 0] + p1 * o[1, 0] + p2 * o[2, 0]
+            a1 = p0 * o[0, 1] + p1 * o[1, 1] + p2 * o[2, 1]
+            a2 = p0 * o[0, 2] + p1 * o[1, 2] + p2 * o[2, 2]
+            out[k + 1, i, 3] = p0 * o[0, 3] + p1 * o[1, 3] + p2 * o[2, 3] + out[k, i, 3]
+            out[k + 1, i, 0] = c * a0 + s * a1
+            out[k + 1, i, 1] = c * a1 - s * a0
+            out[k + 1, i, 2] = a2
+
+
+@njit(cache=True)
+def _check_order(k, m):  # pragma: no cover (compiled)
+    """The first m of :func:`pipeline.planning.base.check_order` (k)."""
+    order = np.empty(m, dtype=np.int64)
+    seen = np.zeros(k, dtype=np.bool_)
+    order[0] = k - 1
+    seen[k - 1] = True
+    n = 1
+    step = k
+    while n < m:
+        step = max(1, step // 2)
+        for i in range(step - 1, k, step):
+            if not seen[i]:
+                seen[i] = True
+                order[n] = i
+                n += 1
+                if n == m:
+                    break
+    return order
+
+
+ROBOT_ARGS = ("grp_frame grp_c grp_r grp_lo grp_hi grp_world sph_c sph_r pair_a pair_b "
+              "rbox_frame rbox_T rbox_h rbox_r rbox_pair_b rbox_pair_g rbox_solid hull "
+              "grp_hlo grp_hhi root_frame root_c root_r grp_reach rbox_reach").split()
+WORLD_ARGS = "box_c box_R box_h box_r box_e og_c og_r og_lo og_hi obs_c obs_r".split()
+
+
+@njit(cache=True)
+def _proved(kind, fr, in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_solid, box_c,
+            box_R, box_h, box_r, depth):  # pragma: no cover (compiled)
+    """Does the robot at frames ``fr`` certainly collide: an inner sphere or a robot box
+    at least ``depth`` deep in a world box, or an inner sphere that deep in a robot box it
+    is tested against (:func:`sphere_hit`, :func:`box_hit`, :func:`inner_hit_rbox`)?"""
+    if kind == 2:
+        return False
+    f4 = fr.reshape((1, fr.shape[0], 3, 4))
+    if in_rbox.size and inner_hit_rbox(f4, 0, in_frame, in_c, in_r, in_rbox, rbox_frame,
+                                       rbox_T, rbox_solid, depth):
+        return True
+    if box_c.shape[0] == 0:
+        return False
+    return ((in_r.shape[0] > 0 and sphere_hit(f4, 0, in_frame, in_c, in_r, box_c, box_R,
+                                              box_h, box_r, depth))
+            or (rbox_solid.shape[0] > 0 and box_hit(f4, 0, rbox_frame, rbox_T, rbox_solid,
+                                                    box_c, box_R, box_h, box_r, depth)))
+
+
+@njit(cache=True)
+def _scan(kind, frames, pre, qa, qb, resolution, limit, start, base, origins, psi_scale,
+          wrist_lower, wrist_step, wrist_state, grp_frame, grp_c, grp_r, grp_lo, grp_hi,
+          grp_world, sph_c, sph_r, pair_a, pair_b, rbox_frame, rbox_T, rbox_h, rbox_r,
+          rbox_pair_b, rbox_pair_g, rbox_solid, hull, grp_hlo, grp_hhi, root_frame, root_c,
+          root_r, grp_reach, rbox_reach, box_c, box_R, box_h, box_r, box_e, og_c, og_r, og_lo,
+          og_hi, obs_c, obs_r, gaps, in_frame, in_c, in_r, in_rbox,
+          depth):  # pragma: no cover (compiled)
+    """The scan of :func:`first_uncertain` (``kind`` 2: the configurations' ``frames``
+    and ``pre`` are given) and of :func:`edge_first` (``kind`` 0: an arm, 1: a base; the
+    configurations are made on the way).  Returns (steps, position, proved): proved when
+    the configuration at ``position`` certainly collides (:func:`_proved`; never asked for
+    ``kind`` 2)."""
+    G, S, B = grp_c.shape[0], sph_c.shape[0], box_c.shape[0]
+    proof = (in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_solid, box_c, box_R, box_h,
+             box_r, depth)
+    gw, sw = np.empty((G, 3)), np.empty((S, 3))
+    done, near = np.zeros(G, dtype=np.bool_), np.empty(B, dtype=np.int64)
+    R = rbox_T.shape[0]
+    # the boxes each group (and each robot box) can reach while the root frame stands
+    # still (an arm on a fixed base: once per motion); a rigid robot (one frame, moving
+    # every configuration) looks at every box near the root
+    gnear, gcount = np.empty((G, B), dtype=np.int64), np.zeros(G, dtype=np.int64)
+    bnear, bcount = np.empty((R, B), dtype=np.int64), np.zeros(R, dtype=np.int64)
+    last, rw, Rw, cw = np.full((3, 4), np.nan), np.empty(3), np.empty((3, 3)), np.empty(3)
+    nb = 0
+    d = qa.shape[0]
+    diff = np.empty(d)
+    q = np.empty(d)
+    if kind == 2:
+        steps = frames.shape[0]
+        rows = steps
+        order = np.empty(0, dtype=np.int64)
+        buf = np.empty((0, 3, 4))
+    else:
+        top = 0.0
+        for i in range(d):
+            diff[i] = qb[i] - qa[i]
+            top = max(top, abs(diff[i]))
+        steps = max(1, math.ceil(top / resolution))
+        rows = min(steps, limit)
+        order = _check_order(steps, rows)
+        buf = np.empty((8 if kind == 0 else 1, 3, 4))
+    articulated = (frames.shape[1] if kind == 2 else buf.shape[0]) > 1
+    ni, nk = wrist_state.shape[0], wrist_state.shape[1]
+    for pos in range(start, rows):
+        if kind == 2:
+            if pre[pos]:
+                return steps, pos, False
+            fr = frames[pos]
+        else:
+            fr = buf
+            t = (order[pos] + 1) / steps
+            for i in range(d):
+                q[i] = qa[i] + t * diff[i]
+            if kind == 0:
+                i5 = min(max(int(math.floor((q[5] - wrist_lower[0]) / wrist_step + 0.5)), 0),
+                         ni - 1)
+                i6 = min(max(int(math.floor((q[6] - wrist_lower[1]) / wrist_step + 0.5)), 0),
+                         nk - 1)
+                cell = wrist_state[i5, i6]
+                if cell == 0:
+                    return steps, -1 - pos, False
+                _chain(q, base, origins, fr)
+                if cell != 1:
+                    return steps, pos, _proved(kind, fr, *proof)
+            else:
+                psi = q[2] / psi_scale
+                c, s_ = math.cos(psi), math.sin(psi)
+                fr[0] = 0.0
+                fr[0, 0, 0], fr[0, 0, 1], fr[0, 0, 3] = c, -s_, q[0]
+                fr[0, 1, 0], fr[0, 1, 1], fr[0, 1, 3] = s_, c, q[1]
+                fr[0, 2, 2] = 1.0
+        F0 = fr[root_frame]
+        moved = False
+        for i in range(3):
+            for j in range(4):
+                if F0[i, j] != last[i, j]:
+                    moved = True
+        if moved:  # an arm on a fixed base: once per motion
+            last[:, :] = F0
+            _apply(F0, root_c, rw)
+            nb = 0
+            for m in range(box_c.shape[0]):
+                if root_r == np.inf or (
+                        not _off_aabb(rw[0], rw[1], rw[2], root_r, box_c[m], box_e[m])
+                        and _sphere_box(rw, root_r, box_c[m], box_R[m], box_h[m])):
+                    near[nb] = m
+                    nb += 1
+            for g in range(G + R if articulated else 0):
+                r = grp_reach[g] if g < G else rbox_reach[g - G]
+                c = 0
+                for k in range(nb):
+                    m = near[k]
+                    if articulated and r < root_r and not _sphere_box(
+                            rw, r, box_c[m], box_R[m], box_h[m]):
+                        continue
+                    if g < G:
+                        gnear[g, c] = m
+                    else:
+                        bnear[g - G, c] = m
+                    c += 1
+                if g < G:
+                    gcount[g] = c
+                else:
+                    bcount[g - G] = c
         for g in range(G):
-            F = frames[n, grp_frame[g]]
-            _apply(F, grp_c[g], gw[g])
-            for s in range(grp_lo[g], grp_hi[g]):
-                _apply(F, sph_c[s], sw[s])
+            _apply(fr[grp_frame[g]], grp_c[g], gw[g])
+            done[g] = False
         for g in range(G):
             if not grp_world[g]:
                 continue
+            F = fr[grp_frame[g]]
             x, y, z, rg = gw[g, 0], gw[g, 1], gw[g, 2], grp_r[g]
-            for m in range(box_c.shape[0]):
-                dx, dy, dz = x - box_c[m, 0], y - box_c[m, 1], z - box_c[m, 2]
-                reach = rg + box_r[m]
-                if dx * dx + dy * dy + dz * dz >= reach * reach:
+            lst, cnt = (gnear[g], gcount[g]) if articulated else (near, nb)
+            for k in range(cnt):
+                m = lst[k]
+                if _off_aabb(x, y, z, rg, box_c[m], box_e[m]):
                     continue
                 if not _sphere_box(gw[g], rg, box_c[m], box_R[m], box_h[m]):
                     continue
+                if not done[g]:
+                    for s in range(grp_lo[g], grp_hi[g]):
+                        _apply(F, sph_c[s], sw[s])
+                    done[g] = True
                 for s in range(grp_lo[g], grp_hi[g]):
                     if _sphere_box(sw[s], sph_r[s], box_c[m], box_R[m], box_h[m]):
-                        return n
+                        if grp_hlo[g] < grp_hhi[g] and _apart(
+                                F, hull, grp_hlo[g], grp_hhi[g], F, 0, 0, box_c[m], box_R[m],
+                                box_h[m], gaps[0]):
+                            break
+                        return steps, pos, _proved(kind, fr, *proof)
             for o in range(og_c.shape[0]):
                 dx, dy, dz = x - og_c[o, 0], y - og_c[o, 1], z - og_c[o, 2]
                 reach = rg + og_r[o]
                 if dx * dx + dy * dy + dz * dz >= reach * reach:
                     continue
+                if not done[g]:
+                    for s in range(grp_lo[g], grp_hi[g]):
+                        _apply(F, sph_c[s], sw[s])
+                    done[g] = True
                 for s in range(grp_lo[g], grp_hi[g]):
                     for u in range(og_lo[o], og_hi[o]):
                         dx = sw[s, 0] - obs_c[u, 0]
@@ -246,31 +626,57 @@ def first_uncertain(frames, start, pre, grp_frame, grp_c, grp_r, grp_lo, grp_hi,
                         dz = sw[s, 2] - obs_c[u, 2]
                         reach = sph_r[s] + obs_r[u]
                         if dx * dx + dy * dy + dz * dz < reach * reach:
-                            return n
+                            return steps, pos, _proved(kind, fr, *proof)
         for k in range(pair_a.shape[0]):
             a, b = pair_a[k], pair_b[k]
             dx, dy, dz = gw[a, 0] - gw[b, 0], gw[a, 1] - gw[b, 1], gw[a, 2] - gw[b, 2]
             reach = grp_r[a] + grp_r[b]
             if dx * dx + dy * dy + dz * dz >= reach * reach:
                 continue
+            Fa, Fb = fr[grp_frame[a]], fr[grp_frame[b]]
+            if not done[a]:
+                for s in range(grp_lo[a], grp_hi[a]):
+                    _apply(Fa, sph_c[s], sw[s])
+                done[a] = True
+            if not done[b]:
+                for s in range(grp_lo[b], grp_hi[b]):
+                    _apply(Fb, sph_c[s], sw[s])
+                done[b] = True
+            touch = False
+            bx, by, bz, br = gw[b, 0], gw[b, 1], gw[b, 2], grp_r[b]
             for s in range(grp_lo[a], grp_hi[a]):
-                for u in range(grp_lo[b], grp_hi[b]):
-                    dx, dy, dz = sw[s, 0] - sw[u, 0], sw[s, 1] - sw[u, 1], sw[s, 2] - sw[u, 2]
-                    reach = sph_r[s] + sph_r[u]
-                    if dx * dx + dy * dy + dz * dz < reach * reach:
-                        return n
-        for b in range(rbox_T.shape[0]):
-            _place(frames[n, rbox_frame[b]], rbox_T[b], Rw, cw)
-            for m in range(box_c.shape[0]):
-                dx, dy, dz = cw[0] - box_c[m, 0], cw[1] - box_c[m, 1], cw[2] - box_c[m, 2]
-                reach = rbox_r[b] + box_r[m]
-                if dx * dx + dy * dy + dz * dz >= reach * reach:
+                x, y, z, rs = sw[s, 0], sw[s, 1], sw[s, 2], sph_r[s]
+                dx, dy, dz = x - bx, y - by, z - bz
+                reach = rs + br
+                if dx * dx + dy * dy + dz * dz >= reach * reach:  # misses all of b
                     continue
-                if _box_box(cw, Rw, rbox_h[b], box_c[m], box_R[m], box_h[m]):
-                    return n
+                for u in range(grp_lo[b], grp_hi[b]):
+                    dx, dy, dz = x - sw[u, 0], y - sw[u, 1], z - sw[u, 2]
+                    reach = rs + sph_r[u]
+                    if dx * dx + dy * dy + dz * dz < reach * reach:
+                        touch = True
+                        break
+                if touch:
+                    break
+            if touch and not (grp_hlo[a] < grp_hhi[a] and grp_hlo[b] < grp_hhi[b] and _apart(
+                    Fa, hull, grp_hlo[a], grp_hhi[a], Fb, grp_hlo[b], grp_hhi[b], cw, Rw, cw,
+                    gaps[2])):
+                return steps, pos, _proved(kind, fr, *proof)
+        for b in range(rbox_T.shape[0]):
+            _place(fr[rbox_frame[b]], rbox_T[b], Rw, cw)
+            lst, cnt = (bnear[b], bcount[b]) if articulated else (near, nb)
+            for k in range(cnt):
+                m = lst[k]
+                if _off_aabb(cw[0], cw[1], cw[2], rbox_r[b], box_c[m], box_e[m]):
+                    continue
+                if not _sphere_box(cw, rbox_r[b], box_c[m], box_R[m], box_h[m]):
+                    continue  # the box's circumsphere misses: so does the box
+                if _box_box(cw, Rw, rbox_h[b], box_c[m], box_R[m], box_h[m]) and _face_gap(
+                        cw, Rw, rbox_solid[b], box_c[m], box_R[m], box_h[m]) < gaps[3]:
+                    return steps, pos, _proved(kind, fr, *proof)
             for u in range(obs_c.shape[0]):
                 if _sphere_box(obs_c[u], obs_r[u], cw, Rw, rbox_h[b]):
-                    return n
+                    return steps, pos, _proved(kind, fr, *proof)
             for k in range(rbox_pair_b.shape[0]):
                 if rbox_pair_b[k] != b:
                     continue
@@ -279,10 +685,68 @@ def first_uncertain(frames, start, pre, grp_frame, grp_c, grp_r, grp_lo, grp_hi,
                 reach = rbox_r[b] + grp_r[g]
                 if dx * dx + dy * dy + dz * dz >= reach * reach:
                     continue
+                F = fr[grp_frame[g]]
+                if not done[g]:
+                    for s in range(grp_lo[g], grp_hi[g]):
+                        _apply(F, sph_c[s], sw[s])
+                    done[g] = True
                 for s in range(grp_lo[g], grp_hi[g]):
                     if _sphere_box(sw[s], sph_r[s], cw, Rw, rbox_h[b]):
-                        return n
-    return frames.shape[0]
+                        if grp_hlo[g] < grp_hhi[g] and _apart(
+                                F, hull, grp_hlo[g], grp_hhi[g], F, 0, 0, cw, Rw, rbox_solid[b],
+                                gaps[1]):
+                            break
+                        return steps, pos, _proved(kind, fr, *proof)
+    return steps, rows, False
+
+
+_NO_STATE = np.empty(0)
+_NO_PRE = np.zeros(0, dtype=np.bool_)
+_NO_FRAMES = np.empty((0, 1, 3, 4))
+_NO_CHAIN = (np.zeros((3, 4)), np.zeros((7, 3, 4)))
+_NO_WRIST = (np.zeros(2), 1.0, np.ones((1, 1), dtype=np.int8))
+_NO_PROOF = (np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0),
+             np.zeros((0, 0), dtype=np.bool_), 1.0)
+
+
+def first_uncertain(frames, start, pre, *arrays):
+    """The first configuration n >= ``start`` (its frames: frames[n], F × 3 × 4) that may
+    collide, or N when none may; ``pre[n]`` marks configurations already in doubt.
+    ``arrays``: the robot's (``ROBOT_ARGS``), the world's (``WORLD_ARGS``) and the gaps.
+
+    Groups with ``grp_world`` are tested against the world's boxes and sphere groups
+    (og_*: bounding sphere and range of obs_c / obs_r); the group pairs (pair_a[k],
+    pair_b[k]) against each other; the robot boxes against the world, and robot box
+    rbox_pair_b[k] against group rbox_pair_g[k].  Spheres of group g are
+    sph_c[grp_lo[g]:grp_hi[g]] in the group's frame.
+
+    Where spheres touch, the geometry they cover decides: group g's convex hull
+    (hull[grp_hlo[g]:grp_hhi[g]] in its frame; none when the range is empty) at least
+    gaps[0] from a world box, gaps[1] from a robot box (true half extents
+    ``rbox_solid``), gaps[2] from another group's hull; a robot box at least gaps[3] from a
+    world box along a face normal.  The sphere (root_c in frame root_frame, radius root_r)
+    holds the whole robot: boxes it misses are not looked at.
+    """
+    return _scan(2, frames, pre, _NO_STATE, _NO_STATE, 1.0, 0, start, *_NO_CHAIN, 1.0,
+                 *_NO_WRIST, *arrays, *_NO_PROOF)[1]
+
+
+def edge_first(a, b, resolution, limit, start, kind, base, origins, psi_scale, wrist_lower,
+               wrist_step, wrist_state, *arrays):
+    """:func:`first_uncertain` over the straight motion a→b as
+    :meth:`pipeline.planning.base.Robot.check_motion` checks it, without making its
+    states first: the states of :func:`pipeline.planning.base.interpolate` (``steps`` of
+    them) in the order of :func:`pipeline.planning.base.check_order`, the first
+    ``min(steps, limit)`` of them, from position ``start``.  Returns (steps, the first
+    position >= start that may collide, or min(steps, limit) when none may, whether it
+    certainly collides).  ``arrays``: the robot's, the world's, the gaps, then the inner
+    spheres (frame, centre, radius, tested against each robot box) and the proof depth
+    (see :func:`_proved`).  ``kind`` 0:
+    an arm (the chain of :func:`arm_frames` on ``base``, and the wrist table: a cell not
+    known free is a doubt; a cell not known at all ends the scan with position -1 - k,
+    for the caller to fill it); 1: a base (:func:`planar_frames`)."""
+    return _scan(kind, _NO_FRAMES, _NO_PRE, a, b, resolution, limit, start, base, origins,
+                 psi_scale, wrist_lower, wrist_step, wrist_state, *arrays)
 
 
 @njit(cache=True)

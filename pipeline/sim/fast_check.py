@@ -22,13 +22,14 @@ in it (a mesh, an unknown robot) is not certified: every row goes to the exact c
 from __future__ import annotations
 
 import functools
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import pybullet as pb
 
-from pipeline.planning.base import Robot
+from pipeline.planning.base import Robot, check_order, interpolate
 from pipeline.sim import collide, spheres, wrist
 
 #: extra radius (metres) of the robot's spheres and of other robots' spheres: pybullet
@@ -40,9 +41,27 @@ BOX_MARGIN = 0.0025
 #: how deep a robot box must reach into a world box for the pair to be a proven collision
 #: (pybullet's box-against-box contacts are exact; this leaves room for rounding)
 PROOF_DEPTH = 0.001
+#: where spheres touch, the covered geometry decides (:func:`pipeline.sim.collide._apart`):
+#: a link's convex hull must be this far from a world box (the spheres' own margin: pybullet
+#: collides a hull grown by its 1 mm margin), from a box the robot carries (1 mm more for the
+#: box's pose, which pybullet places from its own kinematics) and from another link's hull
+#: (both links' margins); a box the robot carries must be this far from a world box along
+#: a face normal (pybullet tests box against box exactly, face axes with no tolerance;
+#: this leaves room for its kinematics, which agree with :mod:`pipeline.sim.spheres` to
+#: about 1e-7 m)
+HULL_GAP = MARGIN
+CARRIED_GAP = MARGIN + 0.001
+BOX_GAP = 1e-4
+GAPS = np.array([HULL_GAP, CARRIED_GAP, 2 * HULL_GAP, BOX_GAP])
 #: base motions: parts of the robot at least this far apart stay apart (pybullet's
 #: distances of rigidly moved parts agree far below this)
 INTERNAL_CLEARANCE = 1e-4
+
+
+_NO_FRAME = np.zeros((3, 4))
+_NO_ORIGINS = np.zeros((7, 4, 4))
+_NO_LOWER = np.zeros(2)
+_NO_CELLS = np.ones((1, 1), dtype=np.int8)
 
 
 def _matrices(quaternions: np.ndarray) -> np.ndarray:
@@ -108,19 +127,23 @@ class World:
 
     def __post_init__(self):
         self.box_r = np.linalg.norm(self.box_h, axis=1)
+        self.box_e = np.ascontiguousarray(np.einsum("bij,bj->bi", np.abs(self.box_R),
+                                                    self.box_h))  # axis-aligned extents
         if self.og_lo is None:  # one group per sphere
             n = len(self.sph_r)
             self.og_lo, self.og_hi = np.arange(n), np.arange(1, n + 1)
             self.og_c, self.og_r = self.sph_c.copy(), self.sph_r.copy()
 
     @classmethod
-    def read(cls, client: int, skip) -> World | None:
-        """Every body of ``client`` but those in ``skip``; None when one is neither a box
-        nor a Panda."""
+    def read(cls, client: int, skip, only=None) -> World | None:
+        """Every body of ``client`` but those in ``skip`` (or the bodies ``only``); None
+        when one is neither a box nor a Panda."""
         boxes, halves, bodies, centres, radii = [], [], [], [np.zeros((0, 3))], [np.zeros(0)]
         groups = []
-        for i in range(pb.getNumBodies(physicsClientId=client)):
-            body = pb.getBodyUniqueId(i, physicsClientId=client)
+        if only is None:
+            only = [pb.getBodyUniqueId(i, physicsClientId=client)
+                    for i in range(pb.getNumBodies(physicsClientId=client))]
+        for body in only:
             if body in skip:
                 continue
             shapes = pb.getCollisionShapeData(body, -1, physicsClientId=client)
@@ -151,6 +174,68 @@ class World:
                    np.array([g[1] for g in groups], dtype=np.int64),
                    np.array([g[2] for g in groups]).reshape(-1, 3),
                    np.array([g[3] for g in groups]))
+
+
+    def join(self, other: World) -> World | None:
+        """This world and ``other``'s boxes (None when ``other`` has spheres too)."""
+        if len(other.sph_r):
+            return None
+        return World(np.concatenate([self.box_c, other.box_c]),
+                     np.concatenate([self.box_R, other.box_R]),
+                     np.concatenate([self.box_h, other.box_h]), self.sph_c, self.sph_r,
+                     self.bodies + other.bodies, self.og_lo, self.og_hi, self.og_c, self.og_r)
+
+
+class _Memo:
+    """A small least-recently-used memo."""
+
+    def __init__(self, size: int):
+        self.size, self.items = size, OrderedDict()
+
+    def get(self, key, make):
+        if key in self.items:
+            self.items.move_to_end(key)
+            return self.items[key]
+        value = self.items[key] = make()
+        while len(self.items) > self.size:
+            self.items.popitem(last=False)
+        return value
+
+
+#: worlds read under a scene's ``world_key`` (what is not the robot, as it stands), the
+#: robot models made from a robot's state, and the internal clearances measured for them
+_WORLDS, _ROBOTS, _CLEARANCES = _Memo(64), _Memo(512), _Memo(512)
+
+
+def _key_of(array, digits: int = 9) -> bytes:
+    """A memo key for an array of poses or joint values: rounded, so that the same state
+    reached along two ways gives one key (nothing here needs better than 1e-9 m or rad:
+    every test keeps a margin of at least 1e-4 m)."""
+    return np.round(np.asarray(array, float), digits).tobytes()
+
+
+def read_world(client: int, skip, key=None, moving=()) -> World | None:
+    """:meth:`World.read` of every body but ``skip``.  With a ``key`` (a scene's promise:
+    the same key, the same bodies at the same poses, apart from ``skip`` and ``moving``),
+    the world is read once per key; the bodies ``moving`` (parts of the robot that the
+    world must include, such as a platform standing still under a moving arm) are read
+    every time."""
+    if key is None:
+        return World.read(client, skip)
+    static_key = (client, frozenset(skip) | frozenset(moving), key)
+    static = _WORLDS.get(static_key, lambda: World.read(client, set(skip) | set(moving)))
+    if static is None or not moving:
+        return static
+
+    def joined():
+        more = World.read(client, (), only=moving)
+        return None if more is None else static.join(more)
+    return _WORLDS.get((static_key, _poses(client, moving)), joined)
+
+
+def _poses(client: int, bodies) -> tuple:
+    """Where ``bodies`` are (part of a memo key)."""
+    return tuple(pb.getBasePositionAndOrientation(b, physicsClientId=client) for b in bodies)
 
 
 @functools.lru_cache(maxsize=16)
@@ -197,18 +282,44 @@ class SphereRobot:
     in_frame: np.ndarray  # inner spheres (inside the collision hulls): frame,
     in_c: np.ndarray  # centre in that frame,
     in_r: np.ndarray  # radius
+    hull: np.ndarray = None  # hull vertices of group g: hull[grp_hlo[g]:grp_hhi[g]],
+    grp_hlo: np.ndarray = None  # in the group's frame (an empty range: no hull known)
+    grp_hhi: np.ndarray = None
+    #: (frame, centre, radius) of a sphere holding the robot, and the radii of spheres with
+    #: the same centre that hold each group and each robot box; None: no such bounds
+    root: tuple = None
+    in_rbox: np.ndarray = None  # (inner sphere, robot box): a proof of collision if deep
 
     def __post_init__(self):
         self.rbox_r = np.linalg.norm(self.rbox_h, axis=1)
+        if self.hull is None:
+            self.hull = np.zeros((0, 3))
+            self.grp_hlo = self.grp_hhi = np.zeros(len(self.grp_r), dtype=np.int64)
+        if self.root is None:
+            self.root = _root([(0, None, ())] * len(self.grp_r), [None] * len(self.rbox_T), None)
+        self.root_frame = int(self.root[0])
+        self.root_c = np.asarray(self.root[1], float)
+        self.root_r = float(self.root[2])
+        self.grp_reach = np.asarray(self.root[3], float)
+        self.rbox_reach = np.asarray(self.root[4], float)
+        if self.in_rbox is None:
+            self.in_rbox = np.zeros((len(self.in_r), len(self.rbox_T)), dtype=np.bool_)
 
     @classmethod
-    def build(cls, groups, pairs=(), boxes=(), box_pairs=(), inner=None) -> SphereRobot:
+    def build(cls, groups, pairs=(), boxes=(), box_pairs=(), inner=None, hulls=None,
+              reach=None) -> SphereRobot:
         """``groups``: (frame, centres (K, 3), radii (K,), tested against the world);
         ``pairs``: group index pairs tested against each other; ``boxes``: (frame,
         4 × 4 pose in it, true half extents; tested with BOX_MARGIN added);
         ``box_pairs``: (box, group) tested against each other; ``inner``: (frames,
-        centres, radii) of spheres inside the robot's collision geometry, or None."""
+        centres, radii) of spheres inside the robot's collision geometry, or None;
+        ``hulls``: per group, the vertices (H, 3) of the convex hull its spheres cover, in
+        its frame, or None; ``reach``: per frame, how far from the origin of frame 0 that
+        frame's origin can be (the robot's parts then lie in a sphere around it; None: no
+        such bound)."""
+        hull_arrays = _hull_arrays(hulls, len(groups))
         groups = list(groups) or [(0, np.zeros((1, 3)), np.array([-1.0]), False)]
+        root = _root(groups, boxes, reach)
         lo = np.cumsum([0] + [len(g[2]) for g in groups])
         bounds = [_bounding(c, r) for _, c, r, _ in groups]
         gc, gr = [b[0] for b in bounds], [b[1] for b in bounds]
@@ -224,7 +335,8 @@ class SphereRobot:
                    np.array([p[0] for p in box_pairs], dtype=np.int64),
                    np.array([p[1] for p in box_pairs], dtype=np.int64),
                    np.array([b[2] for b in boxes], float).reshape(-1, 3),
-                   *_inner_arrays(inner))
+                   *_inner_arrays(inner), *hull_arrays, root,
+                   _inner_vs_boxes(inner, boxes, box_pairs))
 
     def first(self, frames: np.ndarray, world: World, start: int = 0,
               pre: np.ndarray | None = None) -> int:
@@ -232,17 +344,28 @@ class SphereRobot:
         marked in ``pre``), N when none may."""
         if pre is None:
             pre = np.zeros(len(frames), dtype=np.bool_)
-        return int(collide.first_uncertain(
-            frames, start, pre, self.grp_frame, self.grp_c, self.grp_r, self.grp_lo,
-            self.grp_hi, self.grp_world, self.sph_c, self.sph_r, self.pair_a, self.pair_b,
-            self.rbox_frame, self.rbox_T, self.rbox_h, self.rbox_r, self.rbox_pair_b,
-            self.rbox_pair_g,
-            world.box_c, world.box_R, world.box_h, world.box_r, world.og_c, world.og_r,
-            world.og_lo, world.og_hi, world.sph_c, world.sph_r))
+        return int(collide.first_uncertain(frames, start, pre, *self.arrays(world)))
+
+    def arrays(self, world: World) -> tuple:
+        """The robot's and ``world``'s arrays as the kernels of :mod:`.collide` take them."""
+        return (self.grp_frame, self.grp_c, self.grp_r, self.grp_lo, self.grp_hi,
+                self.grp_world, self.sph_c, self.sph_r, self.pair_a, self.pair_b,
+                self.rbox_frame, self.rbox_T, self.rbox_h, self.rbox_r, self.rbox_pair_b,
+                self.rbox_pair_g, self.rbox_solid, self.hull, self.grp_hlo, self.grp_hhi,
+                self.root_frame, self.root_c, self.root_r, self.grp_reach, self.rbox_reach,
+                world.box_c, world.box_R,
+                world.box_h, world.box_r, world.box_e, world.og_c, world.og_r, world.og_lo,
+                world.og_hi,
+                world.sph_c, world.sph_r, GAPS)
 
     def surely_hits(self, frames: np.ndarray, n: int, world: World) -> bool:
         """Does row n of ``frames`` certainly collide (a robot box or an inner sphere deep
-        in a world box)?"""
+        in a world box, or an inner sphere deep in a box the robot carries, where the
+        two are tested against each other)?"""
+        if self.in_rbox.any() and collide.inner_hit_rbox(
+                frames, n, self.in_frame, self.in_c, self.in_r, self.in_rbox, self.rbox_frame,
+                self.rbox_T, self.rbox_solid, PROOF_DEPTH):
+            return True
         if not len(world.box_c):
             return False
         boxes = (world.box_c, world.box_R, world.box_h, world.box_r, PROOF_DEPTH)
@@ -263,19 +386,63 @@ class SphereRobot:
         return out
 
 
+def _hull_arrays(hulls, count: int):
+    """(vertices, first, end) of the groups' hulls (``hulls``: per group an (H, 3) array
+    or None), or Nones (no hulls) when ``hulls`` is None."""
+    if hulls is None:
+        return None, None, None
+    sizes = [0 if h is None else len(h) for h in hulls]
+    lo = np.cumsum([0] + sizes).astype(np.int64)
+    verts = [np.asarray(h, float).reshape(-1, 3) for h in hulls if h is not None]
+    return (np.ascontiguousarray(np.concatenate(verts) if verts else np.zeros((0, 3))),
+            lo[:-1].copy(), lo[1:].copy())
+
+
+def _root(groups, boxes, reach) -> tuple:
+    """A sphere around the origin of frame 0 that holds every group's spheres and every
+    robot box (with its margin) in every configuration, given ``reach`` (per frame, a
+    bound on how far its origin is from frame 0's)."""
+    if reach is None:
+        return (0, np.zeros(3), np.inf, np.full(len(groups), np.inf),
+                np.full(len(boxes), np.inf))
+    grp = np.zeros(len(groups))
+    for g, (frame, centres, radii, _) in enumerate(groups):
+        if len(radii):
+            extent = np.linalg.norm(np.asarray(centres, float), axis=1) + np.asarray(radii)
+            grp[g] = reach[frame] + float(extent.max())
+    box = np.zeros(len(boxes))
+    for b, (frame, T, half) in enumerate(boxes):
+        box[b] = reach[frame] + float(np.linalg.norm(np.asarray(T)[:3, 3])
+                                      + np.linalg.norm(np.asarray(half) + BOX_MARGIN))
+    grp, box = grp + 1e-6, box + 1e-6
+    return 0, np.zeros(3), float(max(grp.max(initial=0.0), box.max(initial=0.0))), grp, box
+
+
 def _inner_arrays(inner) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if inner is None:
         return np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0)
-    frames, centres, radii = inner
+    frames, centres, radii = inner[:3]
     return (np.asarray(frames, dtype=np.int64), np.asarray(centres, float).reshape(-1, 3),
             np.asarray(radii, float))
 
 
+def _inner_vs_boxes(inner, boxes, box_pairs) -> np.ndarray:
+    """(inner spheres, robot boxes): is the pair tested for a proven collision?  Those of
+    the groups paired with the box (``inner`` with the group of each sphere)."""
+    n = 0 if inner is None else len(inner[2])
+    out = np.zeros((n, len(boxes)), dtype=np.bool_)
+    if inner is not None and len(inner) > 3:
+        for b, g in box_pairs:
+            out[np.asarray(inner[3]) == g, b] = True
+    return out
+
+
 def panda_inner():
     """The Panda's inner spheres (:func:`pipeline.sim.spheres.panda_inner_spheres`) as
-    SphereRobot.build's ``inner``."""
+    SphereRobot.build's ``inner``, with the group of each (:func:`panda_groups`' order)."""
     model = spheres.panda_inner_spheres()
-    return model.frames, model.centres, model.radii
+    groups = np.array([spheres.LINKS.index(int(link)) for link in model.links], dtype=np.int64)
+    return model.frames, model.centres, model.radii, groups
 
 
 def panda_groups(model: spheres.SphereModel, frame_of=None):
@@ -308,11 +475,15 @@ class SphereChecker:
 
     def __init__(self, robot: SphereRobot | None, world: World | None, frames: Callable,
                  exact: Callable[[np.ndarray], bool], certified: bool = True,
-                 also: Callable[[np.ndarray], np.ndarray] | None = None):
+                 also: Callable[[np.ndarray], np.ndarray] | None = None, motion=None):
         self.robot, self.world, self.frames, self.exact = robot, world, frames, exact
         self.certified = certified and robot is not None and world is not None
         self.also = also  # more rows to send to ``exact`` (say, the wrist table's)
         self.stats = {"rows": 0, "exact": 0, "proved": 0}
+        #: how :meth:`motion` makes a motion's frames without making its states:
+        #: ("arm", base link frame 3 × 4, chain origins, wrist table) or ("base", psi_scale)
+        self._motion = motion if self.certified else None
+        self._args = None
 
     def _pre(self, states: np.ndarray) -> np.ndarray:
         if self.also is None:
@@ -329,6 +500,8 @@ class SphereChecker:
     def __call__(self, states: np.ndarray) -> tuple[bool, int]:
         states = np.atleast_2d(states)
         n = len(states)
+        if n == 1 and self._motion is not None:
+            return self._one(states[0])
         self.stats["rows"] += n
         if not self.certified:
             for k in range(n):
@@ -349,6 +522,82 @@ class SphereChecker:
             k = self.robot.first(frames, self.world, k + 1, pre)
         return True, n
 
+    def motion(self, a: np.ndarray, b: np.ndarray, resolution: float,
+               limit: int) -> tuple[bool, int]:
+        """:meth:`pipeline.planning.base.Robot.check_motion` with this checker: the same
+        states in the same order, the same answer and count, but the motion's states are
+        never made (:func:`pipeline.sim.collide.edge_first` makes their frames), only
+        those the exact check must see, each exactly as ``interpolate`` makes it."""
+        if self._motion is None:
+            states = interpolate(a, b, resolution)
+            ok, used = self(states[check_order(len(states))][:limit])
+            return ok and used >= len(states), used
+        a = np.ascontiguousarray(a, dtype=float)
+        b = np.ascontiguousarray(b, dtype=float)
+        if self._args is None:
+            self._args = self._motion_args()
+        head, arrays = self._args
+        table = head[-1]
+        args = head[:-1] + (table.state if table is not None else _NO_CELLS,)
+        steps, k, proved = collide.edge_first(a, b, resolution, limit, 0, *args, *arrays)
+        m = min(steps, limit)
+        self.stats["rows"] += m
+        while k < m:
+            if k < 0:  # a wrist cell never computed: compute the cells of the rows left
+                k = -1 - k
+                order = check_order(steps)[k:m]
+                table.uncertain(a + ((order + 1) / steps)[:, None] * (b - a))
+                args = head[:-1] + (table.state,)
+                steps, k, proved = collide.edge_first(a, b, resolution, limit, k, *args,
+                                                      *arrays)
+                continue
+            if proved:
+                self.stats["proved"] += 1
+                return False, k + 1
+            self.stats["exact"] += 1
+            # the state as interpolate makes it: a + t (b - a), t = (row + 1) / steps
+            if self.exact(a + (int(check_order(steps)[k]) + 1) / steps * (b - a)):
+                return False, k + 1
+            steps, k, proved = collide.edge_first(a, b, resolution, limit, k + 1, *args,
+                                                  *arrays)
+        return m >= steps, m
+
+    def _one(self, state: np.ndarray) -> tuple[bool, int]:
+        """One configuration, as ``self(state[None])`` answers and counts it: the motion
+        state→state (its only configuration is ``state``) in one compiled call."""
+        self.stats["rows"] += 1
+        q = np.ascontiguousarray(state, dtype=float)
+        if self._args is None:
+            self._args = self._motion_args()
+        head, arrays = self._args
+        table = head[-1]
+        args = head[:-1] + (table.state if table is not None else _NO_CELLS,)
+        _, k, proved = collide.edge_first(q, q, 1.0, 1, 0, *args, *arrays)
+        if k < 0:  # a wrist cell never computed
+            table.uncertain(q[None])
+            args = head[:-1] + (table.state,)
+            _, k, proved = collide.edge_first(q, q, 1.0, 1, 0, *args, *arrays)
+        if k >= 1:
+            return True, 1
+        if proved:
+            self.stats["proved"] += 1
+            return False, 1
+        self.stats["exact"] += 1
+        return (False, 1) if self.exact(state) else (True, 1)
+
+    def _motion_args(self) -> tuple:
+        """(kind, base frame, chain, psi_scale, wrist grid, wrist table) and the arrays of
+        :func:`pipeline.sim.collide.edge_first`."""
+        kind = self._motion
+        if kind[0] == "arm":
+            table = kind[3]
+            head = (0, kind[1], kind[2], 1.0, table.lower, wrist.STEP, table)
+        else:
+            head = (1, _NO_FRAME, _NO_ORIGINS, float(kind[1]), _NO_LOWER, 1.0, None)
+        r = self.robot
+        proof = (r.in_frame, r.in_c, r.in_r, r.in_rbox, PROOF_DEPTH)
+        return head, r.arrays(self.world) + proof
+
 
 def _arm_frames_fn(base: np.ndarray):
     base34 = np.ascontiguousarray(base[:3])
@@ -358,6 +607,7 @@ def _arm_frames_fn(base: np.ndarray):
         out = np.empty((len(states), 8, 3, 4))
         collide.arm_frames(states, base34, origins, out)
         return out
+    frames.base34, frames.origins = base34, origins
     return frames
 
 
@@ -382,90 +632,129 @@ def wrist_table(ignored_pairs) -> wrist.WristTable:
 
 @functools.lru_cache(maxsize=8)
 def _panda_parts(ignored: frozenset):
-    """(groups, group index of each link, self pairs) of a Panda whose filtered link pairs
-    are ``ignored``; the wrist's own pairs are left to :mod:`pipeline.sim.wrist`."""
+    """(groups, group index of each link, self pairs, hulls of the groups) of a Panda whose
+    filtered link pairs are ``ignored``; the wrist's own pairs are left to
+    :mod:`pipeline.sim.wrist`."""
     groups, index = panda_groups(spheres.panda_spheres(MARGIN))
-    return tuple(groups), index, tuple(self_pairs(index, set(ignored) | set(wrist.PAIRS)))
+    hulls = spheres.panda_hulls()
+    return (tuple(groups), index, tuple(self_pairs(index, set(ignored) | set(wrist.PAIRS))),
+            tuple(hulls[link] for link in spheres.LINKS))
 
 
 @functools.lru_cache(maxsize=8)
 def _panda_robot(ignored: frozenset) -> SphereRobot:
-    groups, _, pairs = _panda_parts(ignored)
-    return SphereRobot.build(groups, pairs, inner=panda_inner())
+    groups, _, pairs, hulls = _panda_parts(ignored)
+    return SphereRobot.build(groups, pairs, inner=panda_inner(), hulls=hulls,
+                             reach=spheres.frame_reach())
 
 
 def _arm_robot(client: int, arm_body: int, ignored_pairs, held, hand_links):
     """(Robot of the arm and its held box, frames function, whether the held box could be
     modelled).  ``held``: None or (body, its pose in the frame of link 6, 4 × 4)."""
     ignored = frozenset(ignored_pairs)
-    frames = _arm_frames_fn(base_link_frame(client, arm_body))
+    frames = _ROBOTS.get(("frames", client, arm_body, _poses(client, (arm_body,))),
+                         lambda: _arm_frames_fn(base_link_frame(client, arm_body)))
     if held is None:
         return _panda_robot(ignored), frames, True
-    groups, index, pairs = _panda_parts(ignored)
     box = _held_box(client, held[0], held[1], spheres.FRAME_OF_LINK[6])
     if box is None:
         return None, frames, False
-    arm_links = [(0, index[link]) for link in index if link not in hand_links]
-    return (SphereRobot.build(groups, pairs, boxes=[box], box_pairs=arm_links,
-                              inner=panda_inner()), frames, True)
+
+    def make():
+        groups, index, pairs, hulls = _panda_parts(ignored)
+        arm_links = [(0, index[link]) for link in index if link not in hand_links]
+        return SphereRobot.build(groups, pairs, boxes=[box], box_pairs=arm_links,
+                                 inner=panda_inner(), hulls=hulls, reach=spheres.frame_reach())
+    key = ("arm", ignored, frozenset(hand_links), box[0], _key_of(box[1]), _key_of(box[2]))
+    return _ROBOTS.get(key, make), frames, True
 
 
 def arm_checker(client: int, arm_body: int, ignored_pairs, exact, *, held=None,
-                hand_links=frozenset(), fixed_robot=()) -> SphereChecker:
+                hand_links=frozenset(), fixed_robot=(), world_key=None) -> SphereChecker:
     """Checker for arm motions with the base fixed.
 
     ``ignored_pairs``: the arm's link pairs pybullet does not check; ``held``: (body, pose
     in the frame of link 6) of a box carried rigidly by the hand (its contacts with
     ``hand_links`` are the grasp); ``fixed_robot``: bodies of the same robot that do not
     move (a platform): the arm and the held box must not touch them, and they must not
-    touch the world.
+    touch the world.  ``world_key``: see :func:`read_world`.
     """
     robot, frames, ok = _arm_robot(client, arm_body, ignored_pairs, held, hand_links)
-    world = World.read(client, {arm_body} | ({held[0]} if held is not None else set()))
+    world = read_world(client, {arm_body} | ({held[0]} if held is not None else set()),
+                       world_key, moving=tuple(fixed_robot))
     certified = ok and world is not None
     if certified and fixed_robot:
         # a fixed part of the robot is a box of the world, and must not touch the rest of
         # the world (pybullet would report a collision for every row): asked once, exactly
+        # (once per world and place of those parts, under a scene's world key)
         robot_bodies = {arm_body, *fixed_robot} | ({held[0]} if held is not None else set())
-        certified = all(body in world.bodies for body in fixed_robot) and not any(
-            _touches_world(client, body, robot_bodies) for body in fixed_robot)
+
+        def apart() -> bool:
+            return all(body in world.bodies for body in fixed_robot) and not any(
+                _touches_world(client, body, robot_bodies) for body in fixed_robot)
+        certified = apart() if world_key is None else _WORLDS.get(
+            ("apart", client, world_key, frozenset(robot_bodies), _poses(client, fixed_robot)),
+            apart)
     table = wrist_table(ignored_pairs)
-    return SphereChecker(robot, world, frames, exact, certified, also=table.uncertain)
+    return SphereChecker(robot, world, frames, exact, certified, also=table.uncertain,
+                         motion=("arm", frames.base34, frames.origins, table))
 
 
 def base_checker(client: int, arm_body: int, platform: int, base_pose: np.ndarray,
-                 psi_scale: float, exact, internal_free: bool, *, held=None) -> SphereChecker:
+                 psi_scale: float, exact, internal_free: bool, *, held=None,
+                 world_key=None) -> SphereChecker:
     """Checker for base motions (x, y, psi_scale · ψ) of a mobile arm, arm fixed.
 
     ``base_pose`` is the base's current 4 × 4 transform (its frame: on the floor under the
     platform's centre); the arm and the platform keep their poses in it.  ``held``: None or
     (body, pose in the base frame) of the carried box.  Contacts within the robot do not
     change while the base moves: ``internal_free`` says the caller ruled them out at the
-    current state (else every row goes to ``exact``).
+    current state (else every row goes to ``exact``).  ``world_key``: see
+    :func:`read_world`.
     """
-    box = _box_of(client, platform)
-    if not internal_free or box is None:
+    if not internal_free:
         return SphereChecker(None, None, None, exact, certified=False)
-    to_base = np.linalg.inv(base_pose)
-    model = spheres.panda_spheres(MARGIN)
-    arm = spheres.arm_frames(arm_state(client, arm_body)[None], base_link_frame(client, arm_body))
-    centres = model.world(arm)[0] @ to_base[:3, :3].T + to_base[:3, 3]
-    groups = [(0, centres[model.links == link], model.radii[model.links == link], link != -1)
-              for link in spheres.LINKS]
-    boxes = [(0, to_base @ box[0], box[1])]
-    if held is not None:
-        box = _held_box(client, held[0], held[1], 0)
-        if box is None:
-            return SphereChecker(None, None, None, exact, certified=False)
-        boxes.append(box)
-    robot = SphereRobot.build(groups, boxes=boxes)
-    world = World.read(client, {arm_body, platform} | ({held[0]} if held is not None else set()))
+    q = arm_state(client, arm_body)
+    key = ("base", client, arm_body, platform, _key_of(q),
+           None if held is None else (_shape_key(client, held[0]), _key_of(held[1])))
+    robot = _ROBOTS.get(key, lambda: _base_robot(client, arm_body, platform, base_pose, q,
+                                                  held))
+    if robot is None:
+        return SphereChecker(None, None, None, exact, certified=False)
+    world = read_world(client, {arm_body, platform} | ({held[0]} if held is not None else set()),
+                       world_key)
 
     def base_frames(states):
         out = np.empty((len(states), 1, 3, 4))
         collide.planar_frames(states, psi_scale, out)
         return out
-    return SphereChecker(robot, world, base_frames, exact)
+    return SphereChecker(robot, world, base_frames, exact, motion=("base", psi_scale))
+
+
+def _base_robot(client: int, arm_body: int, platform: int, base_pose: np.ndarray, q,
+                held) -> SphereRobot | None:
+    """The robot of :func:`base_checker` in its base frame (None: not modelled)."""
+    box = _box_of(client, platform)
+    if box is None:
+        return None
+    to_base = np.linalg.inv(base_pose)
+    model = spheres.panda_spheres(MARGIN)
+    arm = spheres.arm_frames(q[None], base_link_frame(client, arm_body))
+    centres = model.world(arm)[0] @ to_base[:3, :3].T + to_base[:3, 3]
+    groups = [(0, centres[model.links == link], model.radii[model.links == link], link != -1)
+              for link in spheres.LINKS]
+    hulls = []
+    for link in spheres.LINKS:  # hull vertices ride on the frames the spheres ride on
+        F = arm[0, spheres.FRAME_OF_LINK[link]]
+        world = spheres.panda_hulls()[link] @ F[:, :3].T + F[:, 3]
+        hulls.append(world @ to_base[:3, :3].T + to_base[:3, 3])
+    boxes = [(0, to_base @ box[0], box[1])]
+    if held is not None:
+        box = _held_box(client, held[0], held[1], 0)
+        if box is None:
+            return None
+        boxes.append(box)
+    return SphereRobot.build(groups, boxes=boxes, hulls=hulls, reach=np.zeros(1))
 
 
 def _touches_world(client: int, body: int, robot_bodies) -> bool:
@@ -496,8 +785,8 @@ def internal_clearance(robot) -> float:
 
 
 class CertifiedRobot(Robot):
-    """A robot model whose ``check`` is a :class:`SphereChecker` of ``model``'s (same
-    answers and counts); the rest of the model is ``model``'s."""
+    """A robot model whose ``check`` and ``check_motion`` are a :class:`SphereChecker` of
+    ``model``'s (same answers and counts); the rest of the model is ``model``'s."""
 
     def __init__(self, model, checker: SphereChecker):
         self.model, self.checker = model, checker
@@ -506,6 +795,11 @@ class CertifiedRobot(Robot):
 
     def check(self, states: np.ndarray) -> tuple[bool, int]:
         return self.checker(states)
+
+    def check_motion(self, a, b, resolution: float, limit: int) -> tuple[bool, int]:
+        if type(self.model).check_motion is not Robot.check_motion:
+            return super().check_motion(a, b, resolution, limit)  # the model's own order
+        return self.checker.motion(a, b, resolution, limit)
 
     def __getattr__(self, name):  # optional capabilities (distance_model) are the model's
         return getattr(self.model, name)
@@ -524,16 +818,39 @@ def certified(model):
         r = model.robot
         checker = arm_checker(r.client, r.body, r.arm.ignored_pairs, r.arm_collides,
                               held=_held(r, hand=True), hand_links=r.hand_links,
-                              fixed_robot=(r.platform,))
+                              fixed_robot=(r.platform,), world_key=_world_key(r))
     elif isinstance(model, MobileBase):
         r = model.robot
         r.set_base(r.pose)  # the held object where base checks will put it
         checker = base_checker(r.client, r.body, r.platform, r.base_frame(), model.psi_scale,
-                               model.collides, internal_clearance(r) > INTERNAL_CLEARANCE,
-                               held=_held(r, hand=False))
+                               model.collides, _internal_free(r), held=_held(r, hand=False),
+                               world_key=_world_key(r))
     else:
         return model
     return CertifiedRobot(model, checker)
+
+
+def _shape_key(client: int, body: int) -> tuple:
+    """What a body's collision shapes are (not where): part of a memo key."""
+    return tuple((shape[1], shape[2], tuple(shape[3]), shape[4], tuple(shape[5]),
+                  tuple(shape[6])) for shape in pb.getCollisionShapeData(
+                      body, -1, physicsClientId=client))
+
+
+def _world_key(robot):
+    """The scene's key for what is not the robot (``robot.world_key()``), or None."""
+    key = getattr(robot, "world_key", None)
+    return key() if callable(key) else None
+
+
+def _internal_free(robot) -> bool:
+    """:func:`internal_clearance` > INTERNAL_CLEARANCE, measured once per arm state and
+    held object's pose in the hand (what the parts' distances depend on)."""
+    q = arm_state(robot.client, robot.body)
+    key = (robot.client, robot.body, robot.platform, _key_of(q),
+           None if robot.held is None else (_shape_key(robot.client, robot.held),
+                                            _key_of(robot.held_in_tcp)))
+    return _CLEARANCES.get(key, lambda: internal_clearance(robot) > INTERNAL_CLEARANCE)
 
 
 def _held(robot, hand: bool):

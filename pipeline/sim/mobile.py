@@ -55,26 +55,46 @@ class MobilePanda:
         self.pose = np.zeros(3)
         self.held: int | None = None
         self._tcp_obj = np.eye(4)  # the held object in the TCP frame
-        self._base_obj = np.eye(4)  # ... and in the base frame, for the arm's current q
+        # ... and in the base frame, for the arm's current q: made when first needed from
+        # the base pose and the object's pose when the arm was set
+        self._obj_at: tuple[np.ndarray, np.ndarray] | None = (self.pose, np.eye(4))
+        self._base_obj_memo: np.ndarray | None = None
+        self._placements: dict[bytes, tuple] = {}  # base pose -> what set_base computes
         self.set_base(self.pose)
 
     # -- state -----------------------------------------------------------------------------
     def set_base(self, pose) -> None:
-        T = base_transform(pose)
-        self.pose = np.asarray(pose, float)
-        c = self.client
-        pb.resetBasePositionAndOrientation(
-            self.platform, (T @ [0.0, 0.0, PLATFORM_LIFT + PLATFORM[2] / 2, 1.0])[:3].tolist(),
-            quaternion(T[:3, :3]).tolist(), physicsClientId=c)
-        self.arm.set_base((T @ [MOUNT, 0.0, ARM_HEIGHT, 1.0])[:3], float(pose[2]))
+        pose = np.asarray(pose, float)
+        key = pose.tobytes()
+        placed = self._placements.get(key)
+        if placed is None:  # the same numbers for the same pose, computed once
+            T = base_transform(pose)
+            placed = (T, (T @ [0.0, 0.0, PLATFORM_LIFT + PLATFORM[2] / 2, 1.0])[:3].tolist(),
+                      quaternion(T[:3, :3]).tolist(), (T @ [MOUNT, 0.0, ARM_HEIGHT, 1.0])[:3],
+                      float(pose[2]))
+            if len(self._placements) > 256:
+                self._placements.clear()
+            self._placements[key] = placed
+        T, position, orientation, arm_position, yaw = placed
+        self.pose = pose.copy()
+        pb.resetBasePositionAndOrientation(self.platform, position, orientation,
+                                          physicsClientId=self.client)
+        self.arm.set_base(arm_position.copy(), yaw)
         if self.held is not None:
             self._place_held(T @ self._base_obj)
+
+    @property
+    def _base_obj(self) -> np.ndarray:
+        if self._base_obj_memo is None:
+            pose, T_obj = self._obj_at
+            self._base_obj_memo = np.linalg.inv(base_transform(pose)) @ T_obj
+        return self._base_obj_memo
 
     def set_arm(self, q) -> None:
         self.arm.set(q)
         if self.held is not None:
             T_obj = self.tcp_transform() @ self._tcp_obj
-            self._base_obj = np.linalg.inv(base_transform(self.pose)) @ T_obj
+            self._obj_at, self._base_obj_memo = (self.pose, T_obj), None
             self._place_held(T_obj)
 
     def tcp_transform(self) -> np.ndarray:
@@ -140,6 +160,9 @@ class MobilePanda:
 
     # -- what the sphere pre-check (pipeline.sim.fast_check) reads -------------------------
     hand_links = HAND_LINKS
+    #: None, or a function a scene sets: a key that is the same only while everything that
+    #: is not this robot (nor what it holds) is the same (fast_check reads it once per key)
+    world_key = None
 
     def base_frame(self) -> np.ndarray:
         return base_transform(self.pose)

@@ -237,6 +237,27 @@ def panda_spheres(margin: float = 0.0025, slab_ratio: float = 0.3,
     return SphereModel(np.array(centres), np.array(radii), np.array(links))
 
 
+@functools.lru_cache(maxsize=4)
+def panda_hulls(fingers: float = 0.04) -> dict[int, np.ndarray]:
+    """Each link's collision shape as pybullet collides it (the convex hull of its mesh):
+    the hull's vertices (H, 3) in the frame the link rides on (``FRAME_OF_LINK``), the
+    fingers at opening ``fingers``."""
+    out = {}
+    offsets = fixed_offsets(fingers)
+    for link, (path, origin) in sorted(panda_chain().meshes.items()):
+        T = offsets[link] @ origin
+        verts = _mesh_vertices(path) @ T[:3, :3].T + T[:3, 3]
+        out[link] = np.ascontiguousarray(verts[ConvexHull(verts).vertices])
+    return out
+
+
+def frame_reach() -> np.ndarray:
+    """(8,) for each frame of :func:`arm_frames`, a bound on the distance of its origin
+    from the origin of frame 0 (the base link's), whatever the joints."""
+    steps = np.linalg.norm(panda_chain().origins[:7, :3, 3], axis=1)
+    return np.concatenate([[0.0], np.cumsum(steps)])
+
+
 @functools.lru_cache(maxsize=2)
 def panda_inner_spheres(fingers: float = 0.04, per_link: int = 12,
                         min_radius: float = 0.01) -> SphereModel:

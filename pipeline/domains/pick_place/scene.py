@@ -3,6 +3,8 @@ and the few things the steps do to it (reset, hold the rod, put it somewhere, ch
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pybullet as pb
 
@@ -20,6 +22,8 @@ from pipeline.sim import panda as P
 from pipeline.sim.mobile import MobileArm, MobileBase
 from pipeline.sim.world import add_box, quaternion, rot_z
 
+_SCENES = itertools.count()
+
 
 class PickPlaceScene:
     """One pybullet client: floor, furniture, the mobile Panda, the instance's obstacles and
@@ -31,6 +35,8 @@ class PickPlaceScene:
         self.robot = self.mobile.robot
         self.robot_ids = self.mobile.robot_ids
         self.rod: int | None = None
+        self._serial, self._loads = next(_SCENES), 0
+        self.robot.world_key = self.world_key
         #: the robot models planners see: the arm (base fixed, rod checked when held) and
         #: the base in (x, y, psi_scale · ψ) inside the rooms (arm fixed)
         self.arm = MobileArm(self.robot)
@@ -45,7 +51,17 @@ class PickPlaceScene:
             bodies.append(add_box(self.client_id, rod.size, rod.position, 0.0, rgba=ROD_RGBA,
                                   movable=True))
             self.rod = bodies[-1]
+            self._loads += 1
         self.reset(inst)
+
+    def world_key(self) -> tuple:
+        """What is not the robot: the same key, the same bodies at the same poses (the
+        obstacles change only when another instance is loaded; the rod is the robot's
+        while held, else where it lies)."""
+        rod = None
+        if self.rod is not None and self.robot.held != self.rod:
+            rod = pb.getBasePositionAndOrientation(self.rod, physicsClientId=self.client_id)
+        return self._serial, self._loads, rod
 
     def reset(self, inst: PickPlaceInstance) -> None:
         """Rod on the start table, robot at the start with the arm at home, nothing held."""
