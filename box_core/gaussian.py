@@ -39,10 +39,11 @@ class GaussianPosterior:
     Columns whose covariance row is exactly zero in every fold (:meth:`FoldPriors.inert`:
     constant columns, such as constraints never feasible on any row) are *inert*: their
     column of W is zero and their mean and variance never move, and observing one appends
-    a zero row to W and moves nothing.  The batch does not store those zeros: W keeps the
-    rows of the other observations and, for batches of :attr:`NARROW_BATCH` or more, only
-    the columns that are not inert (plus the last m mod 4, see below).  Yet every number
-    it computes is the one conditioning on everything in full computes, bit for bit:
+    a zero row to W and moves nothing, so it costs O(m) rather than O(t m).  Batches of
+    :attr:`NARROW_BATCH` or more where a quarter of the columns or more are inert do not
+    store those zeros either: W keeps the rows of the other observations, over the columns
+    that are not inert (plus the last m mod 4, see below).  Yet every number it computes
+    is the one conditioning on everything in full computes, bit for bit:
 
     - the product l^T W, the only operation whose rounding depends on more than one
       number, is still one BLAS call per instance over t rows with the zero rows in place
@@ -68,6 +69,8 @@ class GaussianPosterior:
     #: The check of the narrow product at t rows multiplies a t x m random matrix; beyond
     #: this many entries it is not made and the product takes all m columns.
     PROBE_ENTRIES = 1 << 22
+    #: Instances whose W has zero rows are multiplied in groups of this many bytes of W.
+    SCRATCH_BYTES = 4 << 20
 
     def __init__(self, prior: FoldPriors, capacity: int = 16, skip_inert: bool = True):
         self.prior = prior
@@ -80,18 +83,25 @@ class GaussianPosterior:
         self.inert = prior.inert() if skip_inert else np.zeros(m, dtype=bool)
         self.t = 0
         self._layout(size)
+        # compact: W keeps only the rows of observations that are not inert (and only its
+        # narrow columns); otherwise every row, zero rows included, as conditioning in
+        # full would (a batch of few inert columns gains little from leaving them out,
+        # and spreading stored rows back to t rows for BLAS costs more than it saves)
+        self._compact = self._cols is not None
         width = m if self._cols is None else self._cols.size
-        # W's rows can only come from columns that are not inert
-        self._limit = max(1, min(capacity, m - int(self.inert.sum())))
+        # compact, W's rows can only come from columns that are not inert
+        live = m - int(self.inert.sum()) if self._compact else m
+        self._limit = max(1, min(capacity, live))
         first = self._limit
         if 8 * size * first * width > self.BUFFER_BYTES:
             first = min(first, max(16, self.INITIAL_BYTES // (8 * max(1, size * width))))
-        self._W = np.empty((size, first, width))  # W's rows that are not zero, in order
+        self._W = np.empty((size, first, width))  # W's rows (compact: those not zero)
         self._step = np.empty((size, first), dtype=np.intp)  # the step of each
         self._count = np.zeros(size, dtype=np.intp)  # rows of _W in use, per instance
         self._alpha = np.empty((size, max(1, min(capacity, 64))))  # one entry per step
         self._rows = np.arange(size)
-        self._scratch = np.zeros((0, width))
+        self._full = True  # no inert observation yet: every instance's W is all stored
+        self._scratch = np.zeros((0, 0, 0))
 
     def _layout(self, size: int) -> None:
         """W's columns: all m, or (``_cols``) the columns that are not inert among the
@@ -141,6 +151,14 @@ class GaussianPosterior:
             # alpha = (y - mu_j) / delta; mean and var do not move.
             resid = scores[idle] - self.prior.mean[idle, cols[idle]]
             self._alpha[idle, t] = resid / np.sqrt(self.eps[idle])
+            if self._compact:
+                self._full = False
+            else:  # the zero row, in place
+                if t == self._W.shape[1]:
+                    self._grow()
+                self._W[idle, t, :] = 0.0
+                self._step[idle, t] = t
+                self._count[idle] += 1
             busy = np.flatnonzero(~inert)
             if busy.size:
                 self._condition(busy, cols[busy], scores[busy], t)
@@ -149,36 +167,51 @@ class GaussianPosterior:
     def _condition(self, folds, cols, scores, t) -> None:
         """The rank-one update of instances ``folds`` (None: all) at step ``t``."""
         rows = self._rows if folds is None else folds
+        # full: every instance's W is stored in full (no inert observation in the batch)
+        full = folds is None and self._full
         count = self._count[rows]
-        if count.size and count.max() == self._W.shape[1]:
+        if (t if full else count.max(initial=0)) == self._W.shape[1]:
             self._grow()
         at = cols if self._cols is None else self._at[cols]  # W's columns of cols
-        dense = bool((count == t).all())  # no inert observation yet: W is all stored
+        dense = full or bool((count == t).all())  # W of these instances all stored
         if dense:
             lw = self._W[rows, :t, at]  # (B, t): W[b, :, cols[b]], the 'l' of the docstring
         else:
             lw = self._full_l(rows, at, count, t)
         cross = self._cov_rows(cols, folds)  # (B, width)
         if t:
-            if dense and folds is None and self._exact(t):
+            exact = self._exact(t)
+            if dense and folds is None and exact:
                 cross -= np.matmul(lw[:, None, :], self._W[:, :t, :])[:, 0, :]
+            elif dense and exact and self._full and 2 * folds.size >= self.size:
+                # one batched call, the others' products wasted (each row's product is
+                # the same whoever else is in the call)
+                every = np.zeros((self.size, t))
+                every[folds] = lw
+                cross -= np.matmul(every[:, None, :], self._W[:, :t, :])[folds, 0, :]
+            elif dense and exact:
+                for i, b in enumerate(rows):
+                    cross[i] -= np.matmul(lw[i], self._W[b, :t])
             else:
                 self._subtract_products(cross, rows, lw, count, t)
-        alpha = self._alpha[rows, :t]
-        eps = self.eps[rows]
+        alpha = self._alpha[:, :t] if folds is None else self._alpha[rows, :t]
+        eps = self.eps if folds is None else self.eps[rows]
         schur = self.prior_var[rows, cols] + eps - np.einsum("bt,bt->b", lw, lw)
         # In exact arithmetic the Schur complement of Sigma + eps I is >= eps.
         delta = np.sqrt(np.maximum(schur, eps))
         w = cross / delta[:, None]
         resid = scores - self.prior.mean[rows, cols] - np.einsum("bt,bt->b", lw, alpha)
         a = resid / delta
-        if dense and folds is None:
+        if full:
             self._W[:, t, :] = w
+            self._step[:, t] = t
+            self._count += 1
+            self._alpha[:, t] = a
         else:
             self._W[rows, count, :] = w
-        self._step[rows, count] = t
-        self._count[rows] = count + 1
-        self._alpha[rows, t] = a
+            self._step[rows, count] = t
+            self._count[rows] = count + 1
+            self._alpha[rows, t] = a
         if self._cols is not None:
             w = w[:, self._real]
             rows = np.ix_(rows, self._real_cols)
@@ -210,35 +243,30 @@ class GaussianPosterior:
 
     def _subtract_products(self, cross, rows, lw, count, t) -> None:
         """cross[i] -= lw[i] @ W_b for instance b = rows[i], W_b its t rows with the zero
-        ones in place: one BLAS call per instance, each the call the whole W would make."""
-        exact = self._exact(t)
-        for i, b in enumerate(rows):
-            n = int(count[i])
-            if n == t and exact:
-                cross[i] -= np.matmul(lw[i], self._W[b, :t])
-                continue
-            full = self._full_W(b, n, t, exact)
-            product = np.matmul(lw[i], full)
-            if not exact:
-                product = product[self._cols]
-                full[:] = 0.0
-            else:
-                full[self._step[b, :n]] = 0.0
-            cross[i] -= product
-
-    def _full_W(self, b, n, t, narrow) -> np.ndarray:
-        """Instance b's W with its zero rows in place (t rows), in a scratch buffer that
-        is zero elsewhere; with all m columns unless ``narrow``."""
+        ones in place: one BLAS call per instance, each the call the whole W would make
+        (made in groups through a scratch buffer that is zero but for W's stored rows)."""
+        narrow = self._exact(t)
         width = self._W.shape[2] if narrow else self.inert.size
-        if self._scratch.shape[0] < t or self._scratch.shape[1] != width:
-            self._scratch = np.zeros((max(t, 2 * self._scratch.shape[0]), width))
-        full = self._scratch[:t]
-        steps = self._step[b, :n]
-        if narrow:
-            full[steps] = self._W[b, :n]
-        else:
-            full[np.ix_(steps, self._real_cols)] = self._W[b, :n][:, self._real]
-        return full
+        group = int(max(1, min(rows.size, self.SCRATCH_BYTES // (8 * t * width))))
+        have, room, wide = self._scratch.shape
+        if wide != width:
+            have = room = 0
+        if room < t or have < group:
+            room = room if room >= t else max(t, 2 * room)
+            self._scratch = np.zeros((max(group, have), room, width))
+        for start in range(0, rows.size, group):
+            part = slice(start, min(rows.size, start + group))
+            full = self._scratch[:part.stop - part.start, :t]
+            at, k = np.nonzero(np.arange(int(count[part].max(initial=0)))[None, :]
+                               < count[part, None])
+            b, steps = rows[part][at], self._step[rows[part][at], k]
+            if narrow:
+                full[at, steps] = self._W[b, k]
+            else:
+                full[at[:, None], steps[:, None], self._real_cols] = self._W[b, k][:, self._real]
+            product = np.matmul(lw[part, None, :], full)[:, 0, :]
+            cross[part] -= product if narrow else product[:, self._cols]
+            full[at, steps] = 0.0
 
     def _exact(self, t: int) -> bool:
         """Whether a product over W's narrow columns rounds as the one over all m
@@ -290,6 +318,7 @@ class GaussianPosterior:
         self._step = self._step[folds]
         self._alpha = self._alpha[folds]
         self._rows = np.arange(folds.size)
+        self._full = bool((self._count == self.t).all())
 
     def _grow(self) -> None:
         size, cap, width = self._W.shape

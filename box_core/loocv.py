@@ -403,7 +403,9 @@ def _run_fast(cls: type[Policy], kwargs, folds: _Folds, measure):
         per = cls.bytes_per_instance(m, m, k)
         if per:
             live = m - int(folds.priors(folds.test).inert().sum())
-            per = cls.bytes_per_instance(m, live, min(k, live))
+            if live == m:  # no constant column: nothing settles before the last try
+                return _run(cls, kwargs, folds, measure)
+            per = cls.bytes_per_instance(m, live, k)
         budget = max(MIN_BATCH_BYTES, BATCH_BYTES_PER_ENTRY * n * m)
         batch = n if per == 0 else int(max(1, min(n, budget // per)))
     else:

@@ -148,9 +148,9 @@ class Policy:
         self._rows = np.arange(folds.size)
 
     @classmethod
-    def bytes_per_instance(cls, m: int, live: int, rows: int) -> int:
-        """Bytes of buffers an instance holds with ``rows`` observations stored, of
-        ``live`` columns that are not inert (see :class:`GaussianPosterior`) out of m."""
+    def bytes_per_instance(cls, m: int, live: int, steps: int) -> int:
+        """Bytes of buffers an instance may hold over ``steps`` tries when ``live`` of the
+        m columns are not inert (see :class:`GaussianPosterior`)."""
         return 0
 
 
@@ -260,8 +260,13 @@ class Box(Policy):
         return int(max(1, min(n, (8 << 20) // (8 * k * m))))
 
     @classmethod
-    def bytes_per_instance(cls, m: int, live: int, rows: int) -> int:
-        return 8 * min(m, live + 6) * rows  # W, at most 6 columns beyond the live ones
+    def bytes_per_instance(cls, m: int, live: int, steps: int) -> int:
+        # W: where a quarter of the columns or more are inert, a row per live column
+        # tried, over the live columns and up to 6 more; otherwise a row per step over all
+        # m columns (see GaussianPosterior)
+        if 4 * (live + 3) <= 3 * m:
+            return 8 * min(m, live + 6) * min(steps, live)
+        return 8 * m * steps
 
     def coefficient(self) -> float:
         return self.c
