@@ -452,12 +452,6 @@ def _check_order(k, m):  # pragma: no cover (compiled)
     return order
 
 
-ROBOT_ARGS = ("grp_frame grp_c grp_r grp_lo grp_hi grp_world sph_c sph_r pair_a pair_b "
-              "rbox_frame rbox_T rbox_h rbox_r rbox_pair_b rbox_pair_g rbox_solid hull "
-              "grp_hlo grp_hhi root_frame root_c root_r grp_reach rbox_reach").split()
-WORLD_ARGS = "box_c box_R box_h box_r box_e og_c og_r og_lo og_hi obs_c obs_r".split()
-
-
 @njit(cache=True)
 def _proved(kind, fr, in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_solid, box_c,
             box_R, box_h, box_r, depth):  # pragma: no cover (compiled)
@@ -479,18 +473,83 @@ def _proved(kind, fr, in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_so
 
 
 @njit(cache=True)
-def _scan(kind, frames, pre, qa, qb, resolution, limit, start, base, origins, psi_scale,
-          wrist_lower, wrist_step, wrist_state, grp_frame, grp_c, grp_r, grp_lo, grp_hi,
-          grp_world, sph_c, sph_r, pair_a, pair_b, rbox_frame, rbox_T, rbox_h, rbox_r,
-          rbox_pair_b, rbox_pair_g, rbox_solid, hull, grp_hlo, grp_hhi, root_frame, root_c,
-          root_r, grp_reach, rbox_reach, box_c, box_R, box_h, box_r, box_e, og_c, og_r, og_lo,
-          og_hi, obs_c, obs_r, gaps, in_frame, in_c, in_r, in_rbox,
-          depth):  # pragma: no cover (compiled)
+def _f1(fb, meta, k):  # pragma: no cover (compiled)
+    o = meta[k, 0]
+    return fb[o:o + meta[k, 1]]
+
+
+@njit(cache=True)
+def _f2(fb, meta, k):  # pragma: no cover (compiled)
+    o, n0, n1 = meta[k, 0], meta[k, 1], meta[k, 2]
+    return fb[o:o + n0 * n1].reshape((n0, n1))
+
+
+@njit(cache=True)
+def _f3(fb, meta, k):  # pragma: no cover (compiled)
+    o, n0, n1, n2 = meta[k, 0], meta[k, 1], meta[k, 2], meta[k, 3]
+    return fb[o:o + n0 * n1 * n2].reshape((n0, n1, n2))
+
+
+#: the arrays :func:`_scan` reads, in the order :func:`pack` lays them out: name, kind
+#: ("f" float64, "i" int64; booleans as 0 or 1) and number of dimensions
+SCAN_ARRAYS = (
+    ("base", "f", 2), ("origins", "f", 3), ("wrist_lower", "f", 1),
+    ("grp_frame", "i", 1), ("grp_c", "f", 2), ("grp_r", "f", 1), ("grp_lo", "i", 1),
+    ("grp_hi", "i", 1), ("grp_world", "i", 1), ("sph_c", "f", 2), ("sph_r", "f", 1),
+    ("pair_a", "i", 1), ("pair_b", "i", 1), ("rbox_frame", "i", 1), ("rbox_T", "f", 3),
+    ("rbox_h", "f", 2), ("rbox_r", "f", 1), ("rbox_pair_b", "i", 1), ("rbox_pair_g", "i", 1),
+    ("rbox_solid", "f", 2), ("hull", "f", 2), ("grp_hlo", "i", 1), ("grp_hhi", "i", 1),
+    ("root_c", "f", 1), ("grp_reach", "f", 1), ("rbox_reach", "f", 1),
+    ("box_c", "f", 2), ("box_R", "f", 3), ("box_h", "f", 2), ("box_r", "f", 1),
+    ("box_e", "f", 2), ("og_c", "f", 2), ("og_r", "f", 1), ("og_lo", "i", 1),
+    ("og_hi", "i", 1), ("obs_c", "f", 2), ("obs_r", "f", 1), ("gaps", "f", 1),
+    ("in_frame", "i", 1), ("in_c", "f", 2), ("in_r", "f", 1), ("in_rbox", "i", 2))
+
+
+def pack(values: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The arrays ``values[name]`` of ``SCAN_ARRAYS`` in two buffers (float64, int64) and
+    their layout (offset and shape of each): one argument each for the compiled scan,
+    whose call costs about 70 ns per array argument."""
+    floats, ints, meta = [], [], np.zeros((len(SCAN_ARRAYS), 4), dtype=np.int64)
+    size = {"f": 0, "i": 0}
+    for k, (name, kind, ndim) in enumerate(SCAN_ARRAYS):
+        a = np.asarray(values[name], dtype=np.float64 if kind == "f" else np.int64)
+        if a.ndim != ndim:
+            raise ValueError(f"pack: {name} has {a.ndim} dimensions, not {ndim}")
+        meta[k, 0] = size[kind]
+        meta[k, 1:1 + ndim] = a.shape
+        (floats if kind == "f" else ints).append(a.ravel())
+        size[kind] += a.size
+    return (np.ascontiguousarray(np.concatenate(floats)),
+            np.ascontiguousarray(np.concatenate(ints) if ints else np.zeros(0, np.int64)),
+            meta)
+
+
+@njit(cache=True)
+def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_step,
+          wrist_state, fb, ib, meta, root_frame, root_r, depth):  # pragma: no cover (compiled)
     """The scan of :func:`first_uncertain` (``kind`` 2: the configurations' ``frames``
     and ``pre`` are given) and of :func:`edge_first` (``kind`` 0: an arm, 1: a base; the
     configurations are made on the way).  Returns (steps, position, proved): proved when
     the configuration at ``position`` certainly collides (:func:`_proved`; never asked for
-    ``kind`` 2)."""
+    ``kind`` 2).  ``fb``, ``ib``, ``meta``: the arrays of ``SCAN_ARRAYS`` (:func:`pack`)."""
+    base, origins, wrist_lower = _f2(fb, meta, 0), _f3(fb, meta, 1), _f1(fb, meta, 2)
+    grp_frame, grp_c, grp_r = _f1(ib, meta, 3), _f2(fb, meta, 4), _f1(fb, meta, 5)
+    grp_lo, grp_hi, grp_world = _f1(ib, meta, 6), _f1(ib, meta, 7), _f1(ib, meta, 8)
+    sph_c, sph_r, pair_a, pair_b = _f2(fb, meta, 9), _f1(fb, meta, 10), _f1(ib, meta, 11), _f1(
+        ib, meta, 12)
+    rbox_frame, rbox_T, rbox_h = _f1(ib, meta, 13), _f3(fb, meta, 14), _f2(fb, meta, 15)
+    rbox_r, rbox_pair_b, rbox_pair_g = _f1(fb, meta, 16), _f1(ib, meta, 17), _f1(ib, meta, 18)
+    rbox_solid, hull, grp_hlo, grp_hhi = _f2(fb, meta, 19), _f2(fb, meta, 20), _f1(
+        ib, meta, 21), _f1(ib, meta, 22)
+    root_c, grp_reach, rbox_reach = _f1(fb, meta, 23), _f1(fb, meta, 24), _f1(fb, meta, 25)
+    box_c, box_R, box_h, box_r = _f2(fb, meta, 26), _f3(fb, meta, 27), _f2(fb, meta, 28), _f1(
+        fb, meta, 29)
+    box_e, og_c, og_r = _f2(fb, meta, 30), _f2(fb, meta, 31), _f1(fb, meta, 32)
+    og_lo, og_hi, obs_c, obs_r = _f1(ib, meta, 33), _f1(ib, meta, 34), _f2(fb, meta, 35), _f1(
+        fb, meta, 36)
+    gaps, in_frame, in_c = _f1(fb, meta, 37), _f1(ib, meta, 38), _f2(fb, meta, 39)
+    in_r, in_rbox = _f1(fb, meta, 40), _f2(ib, meta, 41)
     G, S, B = grp_c.shape[0], sph_c.shape[0], box_c.shape[0]
     proof = (in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_solid, box_c, box_R, box_h,
              box_r, depth)
@@ -703,16 +762,14 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, base, origins, ps
 _NO_STATE = np.empty(0)
 _NO_PRE = np.zeros(0, dtype=np.bool_)
 _NO_FRAMES = np.empty((0, 1, 3, 4))
-_NO_CHAIN = (np.zeros((3, 4)), np.zeros((7, 3, 4)))
-_NO_WRIST = (np.zeros(2), 1.0, np.ones((1, 1), dtype=np.int8))
-_NO_PROOF = (np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0),
-             np.zeros((0, 0), dtype=np.bool_), 1.0)
+_NO_CELLS = np.ones((1, 1), dtype=np.int8)
 
 
-def first_uncertain(frames, start, pre, *arrays):
+def first_uncertain(frames, start, pre, packed) -> int:
     """The first configuration n >= ``start`` (its frames: frames[n], F × 3 × 4) that may
     collide, or N when none may; ``pre[n]`` marks configurations already in doubt.
-    ``arrays``: the robot's (``ROBOT_ARGS``), the world's (``WORLD_ARGS``) and the gaps.
+    ``packed``: (float buffer, int buffer, layout, root frame, root radius, proof depth),
+    the arrays of ``SCAN_ARRAYS`` laid out by :func:`pack`.
 
     Groups with ``grp_world`` are tested against the world's boxes and sphere groups
     (og_*: bounding sphere and range of obs_c / obs_r); the group pairs (pair_a[k],
@@ -725,28 +782,29 @@ def first_uncertain(frames, start, pre, *arrays):
     gaps[0] from a world box, gaps[1] from a robot box (true half extents
     ``rbox_solid``), gaps[2] from another group's hull; a robot box at least gaps[3] from a
     world box along a face normal.  The sphere (root_c in frame root_frame, radius root_r)
-    holds the whole robot: boxes it misses are not looked at.
+    holds the whole robot; spheres with its centre and radii grp_reach, rbox_reach hold
+    each group and robot box: boxes they miss are not looked at.
     """
-    return _scan(2, frames, pre, _NO_STATE, _NO_STATE, 1.0, 0, start, *_NO_CHAIN, 1.0,
-                 *_NO_WRIST, *arrays, *_NO_PROOF)[1]
+    return _scan(2, frames, pre, _NO_STATE, _NO_STATE, 1.0, 0, start, 1.0, 1.0, _NO_CELLS,
+                 *packed)[1]
 
 
-def edge_first(a, b, resolution, limit, start, kind, base, origins, psi_scale, wrist_lower,
-               wrist_step, wrist_state, *arrays):
+def edge_first(a, b, resolution, limit, start, kind, psi_scale, wrist_step, wrist_state,
+               packed) -> tuple[int, int, bool]:
     """:func:`first_uncertain` over the straight motion a→b as
     :meth:`pipeline.planning.base.Robot.check_motion` checks it, without making its
     states first: the states of :func:`pipeline.planning.base.interpolate` (``steps`` of
     them) in the order of :func:`pipeline.planning.base.check_order`, the first
     ``min(steps, limit)`` of them, from position ``start``.  Returns (steps, the first
     position >= start that may collide, or min(steps, limit) when none may, whether it
-    certainly collides).  ``arrays``: the robot's, the world's, the gaps, then the inner
-    spheres (frame, centre, radius, tested against each robot box) and the proof depth
-    (see :func:`_proved`).  ``kind`` 0:
-    an arm (the chain of :func:`arm_frames` on ``base``, and the wrist table: a cell not
-    known free is a doubt; a cell not known at all ends the scan with position -1 - k,
-    for the caller to fill it); 1: a base (:func:`planar_frames`)."""
-    return _scan(kind, _NO_FRAMES, _NO_PRE, a, b, resolution, limit, start, base, origins,
-                 psi_scale, wrist_lower, wrist_step, wrist_state, *arrays)
+    certainly collides: an inner sphere or robot box deep in a world box, or an inner
+    sphere deep in a robot box it is tested against).  ``kind`` 0: an arm (the chain of
+    :func:`arm_frames` on ``base``, and the wrist table ``wrist_state`` on a grid of
+    ``wrist_step`` from ``wrist_lower``: a cell not known free is a doubt; a cell not
+    known at all ends the scan with position -1 - k, for the caller to fill it); 1: a base
+    (:func:`planar_frames`)."""
+    return _scan(kind, _NO_FRAMES, _NO_PRE, a, b, resolution, limit, start, psi_scale,
+                 wrist_step, wrist_state, *packed)
 
 
 @njit(cache=True)

@@ -59,7 +59,7 @@ INTERNAL_CLEARANCE = 1e-4
 
 
 _NO_FRAME = np.zeros((3, 4))
-_NO_ORIGINS = np.zeros((7, 4, 4))
+_NO_ORIGINS = np.zeros((7, 3, 4))
 _NO_LOWER = np.zeros(2)
 _NO_CELLS = np.ones((1, 1), dtype=np.int8)
 
@@ -304,6 +304,7 @@ class SphereRobot:
         self.rbox_reach = np.asarray(self.root[4], float)
         if self.in_rbox is None:
             self.in_rbox = np.zeros((len(self.in_r), len(self.rbox_T)), dtype=np.bool_)
+        self._packs: dict[int, tuple] = {}
 
     @classmethod
     def build(cls, groups, pairs=(), boxes=(), box_pairs=(), inner=None, hulls=None,
@@ -344,19 +345,28 @@ class SphereRobot:
         marked in ``pre``), N when none may."""
         if pre is None:
             pre = np.zeros(len(frames), dtype=np.bool_)
-        return int(collide.first_uncertain(frames, start, pre, *self.arrays(world)))
+        return int(collide.first_uncertain(frames, start, pre, self.packed(world)))
 
-    def arrays(self, world: World) -> tuple:
-        """The robot's and ``world``'s arrays as the kernels of :mod:`.collide` take them."""
-        return (self.grp_frame, self.grp_c, self.grp_r, self.grp_lo, self.grp_hi,
-                self.grp_world, self.sph_c, self.sph_r, self.pair_a, self.pair_b,
-                self.rbox_frame, self.rbox_T, self.rbox_h, self.rbox_r, self.rbox_pair_b,
-                self.rbox_pair_g, self.rbox_solid, self.hull, self.grp_hlo, self.grp_hhi,
-                self.root_frame, self.root_c, self.root_r, self.grp_reach, self.rbox_reach,
-                world.box_c, world.box_R,
-                world.box_h, world.box_r, world.box_e, world.og_c, world.og_r, world.og_lo,
-                world.og_hi,
-                world.sph_c, world.sph_r, GAPS)
+    def packed(self, world: World, base=_NO_FRAME, origins=_NO_ORIGINS,
+               wrist_lower=_NO_LOWER) -> tuple:
+        """The robot's and ``world``'s arrays as :func:`pipeline.sim.collide.pack` lays
+        them out for the compiled scan, with the root frame and radius and the proof depth
+        (an arm's base frame and chain, and the wrist table's grid origin, when given);
+        remembered per world and those."""
+        key = (id(world), np.asarray(base).tobytes(), np.asarray(origins).tobytes(),
+               np.asarray(wrist_lower).tobytes())
+        if key in self._packs:
+            return self._packs[key][1]
+        values = {name: getattr(self, name, None) for name, _, _ in collide.SCAN_ARRAYS}
+        values.update(base=base, origins=origins, wrist_lower=wrist_lower, gaps=GAPS,
+                      **{name: getattr(world, name) for name in (
+                          "box_c", "box_R", "box_h", "box_r", "box_e", "og_c", "og_r",
+                          "og_lo", "og_hi")}, obs_c=world.sph_c, obs_r=world.sph_r)
+        packed = (*collide.pack(values), self.root_frame, self.root_r, PROOF_DEPTH)
+        if len(self._packs) > 64:
+            self._packs.clear()
+        self._packs[key] = (world, packed)  # the world kept: its id stays its own
+        return packed
 
     def surely_hits(self, frames: np.ndarray, n: int, world: World) -> bool:
         """Does row n of ``frames`` certainly collide (a robot box or an inner sphere deep
@@ -536,10 +546,10 @@ class SphereChecker:
         b = np.ascontiguousarray(b, dtype=float)
         if self._args is None:
             self._args = self._motion_args()
-        head, arrays = self._args
-        table = head[-1]
-        args = head[:-1] + (table.state if table is not None else _NO_CELLS,)
-        steps, k, proved = collide.edge_first(a, b, resolution, limit, 0, *args, *arrays)
+        kind, psi, step, table, packed = self._args
+        cells = table.state if table is not None else _NO_CELLS
+        steps, k, proved = collide.edge_first(a, b, resolution, limit, 0, kind, psi, step,
+                                              cells, packed)
         m = min(steps, limit)
         self.stats["rows"] += m
         while k < m:
@@ -547,9 +557,9 @@ class SphereChecker:
                 k = -1 - k
                 order = check_order(steps)[k:m]
                 table.uncertain(a + ((order + 1) / steps)[:, None] * (b - a))
-                args = head[:-1] + (table.state,)
-                steps, k, proved = collide.edge_first(a, b, resolution, limit, k, *args,
-                                                      *arrays)
+                cells = table.state
+                steps, k, proved = collide.edge_first(a, b, resolution, limit, k, kind, psi,
+                                                      step, cells, packed)
                 continue
             if proved:
                 self.stats["proved"] += 1
@@ -558,8 +568,8 @@ class SphereChecker:
             # the state as interpolate makes it: a + t (b - a), t = (row + 1) / steps
             if self.exact(a + (int(check_order(steps)[k]) + 1) / steps * (b - a)):
                 return False, k + 1
-            steps, k, proved = collide.edge_first(a, b, resolution, limit, k + 1, *args,
-                                                  *arrays)
+            steps, k, proved = collide.edge_first(a, b, resolution, limit, k + 1, kind, psi,
+                                                  step, cells, packed)
         return m >= steps, m
 
     def _one(self, state: np.ndarray) -> tuple[bool, int]:
@@ -569,14 +579,13 @@ class SphereChecker:
         q = np.ascontiguousarray(state, dtype=float)
         if self._args is None:
             self._args = self._motion_args()
-        head, arrays = self._args
-        table = head[-1]
-        args = head[:-1] + (table.state if table is not None else _NO_CELLS,)
-        _, k, proved = collide.edge_first(q, q, 1.0, 1, 0, *args, *arrays)
+        kind, psi, step, table, packed = self._args
+        cells = table.state if table is not None else _NO_CELLS
+        _, k, proved = collide.edge_first(q, q, 1.0, 1, 0, kind, psi, step, cells, packed)
         if k < 0:  # a wrist cell never computed
             table.uncertain(q[None])
-            args = head[:-1] + (table.state,)
-            _, k, proved = collide.edge_first(q, q, 1.0, 1, 0, *args, *arrays)
+            _, k, proved = collide.edge_first(q, q, 1.0, 1, 0, kind, psi, step, table.state,
+                                              packed)
         if k >= 1:
             return True, 1
         if proved:
@@ -586,17 +595,15 @@ class SphereChecker:
         return (False, 1) if self.exact(state) else (True, 1)
 
     def _motion_args(self) -> tuple:
-        """(kind, base frame, chain, psi_scale, wrist grid, wrist table) and the arrays of
+        """(kind, psi_scale, wrist grid step, wrist table, packed arrays) of
         :func:`pipeline.sim.collide.edge_first`."""
         kind = self._motion
         if kind[0] == "arm":
             table = kind[3]
-            head = (0, kind[1], kind[2], 1.0, table.lower, wrist.STEP, table)
-        else:
-            head = (1, _NO_FRAME, _NO_ORIGINS, float(kind[1]), _NO_LOWER, 1.0, None)
-        r = self.robot
-        proof = (r.in_frame, r.in_c, r.in_r, r.in_rbox, PROOF_DEPTH)
-        return head, r.arrays(self.world) + proof
+            return 0, 1.0, wrist.STEP, table, self.robot.packed(
+                self.world, np.ascontiguousarray(kind[1]), np.ascontiguousarray(kind[2]),
+                np.asarray(table.lower, float))
+        return 1, float(kind[1]), 1.0, None, self.robot.packed(self.world)
 
 
 def _arm_frames_fn(base: np.ndarray):

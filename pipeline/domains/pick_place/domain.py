@@ -160,7 +160,7 @@ class PickPlaceDomain(Domain):
             scene, robot = self._scene, self._scene.robot
             robot.set_base(PARK_POSE)
             robot.set_arm(P.HOME)
-            robot.grasp(scene.rod, np.linalg.inv(g.rod_tcp(inst.rod_length)))
+            robot.grasp(scene.rod, g.rod_in_hand(inst.rod_length))
             # the rod's frame is the base's (rod along the heading), so the TCP turns by g's
             world = base_transform(PARK_POSE) @ pose_matrix(CARRY_TCP, g.rod_tcp(1.0)[:3, :3])
             ik = solve_ik(robot, world[:3, 3], quaternion(world[:3, :3]),

@@ -3,6 +3,7 @@ and the few things the steps do to it (reset, hold the rod, put it somewhere, ch
 
 from __future__ import annotations
 
+import functools
 import itertools
 
 import numpy as np
@@ -23,6 +24,12 @@ from pipeline.sim.mobile import MobileArm, MobileBase
 from pipeline.sim.world import add_box, quaternion, rot_z
 
 _SCENES = itertools.count()
+
+
+@functools.lru_cache(maxsize=4096)
+def _yaw_turn(yaw: float) -> list:
+    """``quaternion(rot_z(yaw))`` as a list (shared: pybullet only reads it)."""
+    return quaternion(rot_z(yaw)).tolist()
 
 
 class PickPlaceScene:
@@ -71,8 +78,7 @@ class PickPlaceScene:
         self.robot.set_arm(P.HOME)
 
     def put_rod(self, box: Box) -> None:
-        pb.resetBasePositionAndOrientation(self.rod, list(box.position),
-                                           quaternion(rot_z(box.yaw)).tolist(),
+        pb.resetBasePositionAndOrientation(self.rod, list(box.position), _yaw_turn(box.yaw),
                                            physicsClientId=self.client_id)
 
     def rod_collides(self) -> bool:
@@ -84,7 +90,7 @@ class PickPlaceScene:
         """The rod in the hand, the arm in the carry configuration."""
         self.robot.release()
         self.robot.set_arm(carry)
-        self.robot.grasp(self.rod, np.linalg.inv(g.rod_tcp(inst.rod_length)))
+        self.robot.grasp(self.rod, g.rod_in_hand(inst.rod_length))
 
     def set_configuration(self, q) -> None:
         """q = (x, y, ψ, 7 arm joints)."""

@@ -3,6 +3,7 @@ instance and the constraint θ (a :class:`Route`).  No simulator."""
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,10 +42,23 @@ class RodGrasp:
     def rod_tcp(self, length: float) -> np.ndarray:
         """The TCP in the rod's frame (x along the rod, z up): on the rod's axis, its z
         along the approach; at rotation 0 its x is along the rod, so the fingers close
-        across it."""
-        approach = rot_x(self.tilt) @ np.array([0.0, 0.0, -1.0])
-        return pose_matrix((self.fraction * length / 2, 0.0, 0.0),
-                           hand_orientation(approach, self.rotation))
+        across it.  (A new array each call; computed once per grasp and length.)"""
+        return _rod_tcp(self.fraction, self.rotation, self.tilt, float(length)).copy()
+
+    def rod_in_hand(self, length: float) -> np.ndarray:
+        """The rod in the TCP frame, ``inv(rod_tcp(length))`` (a new array each call)."""
+        return _rod_in_hand(self.fraction, self.rotation, self.tilt, float(length)).copy()
+
+
+@functools.lru_cache(maxsize=1024)
+def _rod_tcp(fraction: float, rotation: float, tilt: float, length: float) -> np.ndarray:
+    approach = rot_x(tilt) @ np.array([0.0, 0.0, -1.0])
+    return pose_matrix((fraction * length / 2, 0.0, 0.0), hand_orientation(approach, rotation))
+
+
+@functools.lru_cache(maxsize=1024)
+def _rod_in_hand(fraction: float, rotation: float, tilt: float, length: float) -> np.ndarray:
+    return np.linalg.inv(_rod_tcp(fraction, rotation, tilt, length))
 
 
 def rot_x(a: float) -> np.ndarray:

@@ -1,0 +1,211 @@
+"""pick_place: ms per score-matrix entry on one core, the default checker against
+``planner.collision=exact`` and against the code of another revision, side by side.
+
+The entries are those of a paper-scale pick_place store (paper step order, as
+stage=generate computes them): Θ̂ is RAWPLANNER's solutions on ``--raw`` instances (as
+stage=constraints extracts it), and one block of ``--instances`` × ``--constraints`` entries
+(other instances) is planned the way a worker plans a block
+(:func:`pipeline.worker.score_block`: the instance set up once, then its constraints).  The
+issue's target (issue 27, item 1): <= 4 ms per entry at 300 × 300, one core, answers and
+check counts equal to ``exact``'s.
+
+Every variant runs in its own process (one thread: OMP/OpenBLAS/MKL limited to 1), warmed
+up on other instances first (numba's compiled kernels load, caches fill), then the block is
+timed: ``--repeats`` times, the variants' order rotating from repeat to repeat so that the
+machine's drift hits all alike.  Printed: median wall and CPU ms per entry of each variant,
+their ratios, and how many entries agree between the variants: status, feasibility, failed
+step, collision checks, path length and score, bit for bit.
+
+Variants: ``new`` (this checkout, the default ``planner.collision=spheres``), ``exact``
+(this checkout, ``planner.collision=exact``) and ``base`` (the default setting at git
+revision ``--baseline-rev``, exported with ``git archive``; ``--baseline-rev ''`` skips it).
+
+Run: python benchmarks/bench_pick_place.py [--raw 40] [--instances 8] [--constraints 40]
+         [--repeats 3] [--baseline-rev 641b270] [--profile]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+TARGET_MS = 4.0
+#: the revision before issue 27's item 1 (the sphere pre-check of issue 26, 18 ms/entry)
+BASELINE_REV = "641b270"
+ONE_THREAD = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                               "NUMBA_NUM_THREADS")}
+COLUMNS = ("status", "feasible", "step", "checks", "length", "score")
+
+
+# -- the child: one variant, one process -------------------------------------------------
+
+def child(job: dict) -> None:
+    """Plan the block of ``job['data']`` under one variant; print its timing as JSON and
+    save its result arrays to ``job['out']``."""
+    from pipeline import worker
+
+    data = np.load(job["data"])
+    spec = {"name": "pick_place", "config": {"step_order": "paper"},
+            "planner": {"name": "rrt_connect", "collision": job["collision"]}}
+    theta, specs, seeds = data["theta"], [str(s) for s in data["specs"]], data["seeds"]
+    warm = [str(s) for s in data["warm_specs"]]
+    worker.score_block(spec, 1, warm, [int(s) for s in data["warm_seeds"]],
+                       theta[: min(len(theta), 12)], 0)
+    prof = None
+    if job.get("profile"):
+        import cProfile
+
+        prof = cProfile.Profile()
+        prof.enable()
+    w0, c0 = time.perf_counter(), time.process_time()
+    arrays, report = worker.score_block(spec, 0, specs, [int(s) for s in seeds], theta, 0)
+    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    if prof is not None:
+        import pstats
+
+        prof.disable()
+        pstats.Stats(prof, stream=sys.stderr).sort_stats("tottime").print_stats(25)
+    np.savez(job["out"], **{k: arrays[k] for k in COLUMNS})
+    n = arrays["status"].size
+    print(json.dumps({"wall_ms": wall / n * 1e3, "cpu_ms": cpu / n * 1e3, "n": n,
+                      "status": report["status"]}))
+
+
+# -- the parent ---------------------------------------------------------------------------
+
+def entries(raw: int, instances: int, constraints: int, seed: int) -> dict:
+    """Θ̂ from RAWPLANNER on ``raw`` instances, and the block's and the warm-up's instances."""
+    from pipeline.domains import load_domain
+
+    domain = load_domain("pick_place", planner={"name": "rrt_connect"}, step_order="paper")
+    rows = []
+    t0 = time.perf_counter()
+    for k in range(raw):
+        spec = domain.sample_instance(seed + k)
+        found = domain.raw_plan(spec, seed=seed + 50_000 + k)
+        if found.plan.feasible:
+            rows.append(found.constraint)
+        if len(rows) == constraints:
+            break
+    print(f"Θ̂: {len(rows)} constraints from RAWPLANNER on {k + 1} instances "
+          f"({time.perf_counter() - t0:.0f} s)")
+    first = seed + 100_000
+    block = [domain.sample_instance(first + i) for i in range(instances)]
+    warm = [domain.sample_instance(first - 1 - i) for i in range(2)]
+    domain.close()
+    return {"theta": np.array(rows), "specs": np.array([json.dumps(s) for s in block]),
+            "seeds": np.arange(first, first + instances),
+            "warm_specs": np.array([json.dumps(s) for s in warm]),
+            "warm_seeds": np.arange(first - 2, first)}
+
+
+def baseline(rev: str, into: Path) -> Path | None:
+    """The packages ``pipeline`` and ``conf`` of git revision ``rev`` under ``into``."""
+    try:
+        archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "pipeline", "conf"],
+                                 capture_output=True, check=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(into)], input=archive, check=True)
+    except (OSError, subprocess.CalledProcessError) as exc:
+        print(f"(no baseline: git archive {rev} failed: {exc})")
+        return None
+    return into
+
+
+def run(variant: str, root: Path, collision: str, data: Path, out: Path,
+        profile: bool) -> dict:
+    env = dict(os.environ, **ONE_THREAD, PYTHONPATH=str(root))
+    job = {"data": str(data), "out": str(out), "collision": collision, "profile": profile}
+    done = subprocess.run([sys.executable, __file__, "--child", json.dumps(job)], cwd=root,
+                          env=env, capture_output=True, text=True)
+    if done.returncode:
+        raise RuntimeError(f"{variant}: {done.stderr[-3000:]}")
+    if profile:
+        print(f"-- cProfile of {variant} (top 25 by own time)\n" + done.stderr[-6000:])
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def same(a: Path, b: Path) -> np.ndarray:
+    """(entries,) whether every column agrees bit for bit (NaN lengths of failures too)."""
+    x, y = np.load(a), np.load(b)
+    agree = np.ones(x["status"].shape, dtype=bool)
+    for k in COLUMNS:
+        u, v = x[k], y[k]
+        agree &= (u == v) | (np.isnan(u) & np.isnan(v)) if u.dtype.kind == "f" else (u == v)
+    return agree
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--raw", type=int, default=60, help="RAWPLANNER instances for Θ̂ (most)")
+    ap.add_argument("--instances", type=int, default=8)
+    ap.add_argument("--constraints", type=int, default=40)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--seed", type=int, default=2017)
+    ap.add_argument("--baseline-rev", default=BASELINE_REV)
+    ap.add_argument("--profile", action="store_true", help="cProfile the last repeat")
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        child(json.loads(args.child))
+        return
+    with tempfile.TemporaryDirectory(prefix="bench_pick_place_") as tmp:
+        tmp = Path(tmp)
+        data = tmp / "entries.npz"
+        np.savez(data, **entries(args.raw, args.instances, args.constraints, args.seed))
+        variants = {"new": (ROOT, "spheres"), "exact": (ROOT, "exact")}
+        if args.baseline_rev:
+            (tmp / "base").mkdir()
+            base = baseline(args.baseline_rev, tmp / "base")
+            if base is not None:
+                variants["base"] = (base, "spheres")
+        times = {v: [] for v in variants}
+        names = list(variants)
+        for r in range(args.repeats):
+            for v in names[r % len(names):] + names[: r % len(names)]:
+                root, collision = variants[v]
+                last = args.profile and r == args.repeats - 1 and v == "new"
+                times[v].append(run(v, root, collision, data, tmp / f"{v}.npz", last))
+        report(args, times, tmp, variants)
+        shutil.rmtree(tmp / "base", ignore_errors=True)
+
+
+def report(args, times: dict, tmp: Path, variants: dict) -> None:
+    n = times["new"][0]["n"]
+    med = {v: {k: statistics.median(t[k] for t in ts) for k in ("wall_ms", "cpu_ms")}
+           for v, ts in times.items()}
+    print(f"pick_place, paper step order: {args.instances} instances × "
+          f"{n // args.instances} constraints = {n} entries per run, one core, median of "
+          f"{args.repeats} runs per variant")
+    print(f"  {'variant':<40}{'wall ms/entry':>15}{'cpu ms/entry':>14}{'/ new':>9}")
+    label = {"new": "new (planner.collision=spheres)",
+             "exact": "new, planner.collision=exact",
+             "base": f"baseline {args.baseline_rev} (spheres)"}
+    for v in variants:
+        ratio = med[v]["cpu_ms"] / med["new"]["cpu_ms"]
+        print(f"  {label[v]:<40}{med[v]['wall_ms']:>15.2f}{med[v]['cpu_ms']:>14.2f}"
+              f"{ratio:>8.2f}x")
+    print(f"  target: <= {TARGET_MS:g} ms per entry: "
+          + ("met" if med["new"]["cpu_ms"] <= TARGET_MS else "not met")
+          + f" ({med['new']['cpu_ms']:.2f} ms cpu, {med['new']['wall_ms']:.2f} ms wall)")
+    for other in [v for v in variants if v != "new"]:
+        agree = same(tmp / "new.npz", tmp / f"{other}.npz")
+        print(f"  new vs {other}: {agree.mean():.2%} of entries identical ({agree.sum()} of "
+              f"{agree.size}: {', '.join(COLUMNS)})")
+    status = times["new"][-1]["status"]
+    print("  outcomes: " + ", ".join(f"{k} {v / n:.0%}" for k, v in sorted(
+        status.items(), key=lambda kv: -kv[1])))
+
+
+if __name__ == "__main__":
+    main()

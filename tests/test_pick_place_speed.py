@@ -1,0 +1,303 @@
+"""The faster pick_place (issue 27, item 1) answers as ``planner.collision=exact`` does:
+whole entries planned block by block, edges and single configurations checked by the
+compiled scan, the geometric refinements it trusts (convex hulls, box faces), the memos of
+worlds and robots, and the shortcutter's random pairs.  Behaviour only; the timings are
+``benchmarks/bench_pick_place.py``'s."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pybullet as pb
+import pytest
+from scipy.optimize import nnls
+
+from pipeline import worker
+from pipeline.domains import load_domain
+from pipeline.planning.base import Robot, check_order, interpolate
+from pipeline.planning.rrt_connect import _Pairs
+from pipeline.sim import collide
+from pipeline.sim import fast_check as FC
+from pipeline.sim import panda as P
+from pipeline.sim.mobile import MobileArm
+from pipeline.sim.world import add_box, connect
+from tests import replay
+
+COLUMNS = ("status", "feasible", "step", "checks", "length", "score")
+
+
+def _store():
+    return next(s for s in replay.stored()["stores"] if s["store"] == "pick_place.zarr")
+
+
+def _spec(collision: str, order: str = "paper") -> dict:
+    store = _store()
+    config = {k: v for k, v in store["domain"].items() if k != "name"}
+    config["step_order"] = order
+    return {"name": "pick_place", "config": config,
+            "planner": {**store["planner"], "collision": collision, "wall_cap_s": 1e6}}
+
+
+def _block(collision: str, order: str = "paper") -> dict:
+    """Every (instance, constraint) of the replay store's pick_place entries, as one
+    worker block."""
+    store = _store()
+    specs = [json.dumps(inst) for inst in store["instances"]]
+    seeds = [inst["seed"] for inst in store["instances"]]
+    arrays, _ = worker.score_block(_spec(collision, order), 0, specs, seeds,
+                                   np.array(store["theta"]), 0)
+    return arrays
+
+
+def _assert_same(a: dict, b: dict) -> None:
+    for k in COLUMNS:
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)  # NaN == NaN here
+
+
+@pytest.mark.parametrize("order", ["paper", "cheap_first"])
+def test_entries_equal_exact_ones(order):
+    """36 entries (6 instances × 6 constraints, a block as a worker plans it): status,
+    feasibility, failed step, checks, length and score bit for bit."""
+    fast, exact = _block("spheres", order), _block("exact", order)
+    _assert_same(fast, exact)
+    assert fast["feasible"].sum() >= 3 and (~fast["feasible"]).sum() >= 3
+
+
+# -- edges and single configurations -------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def carrying():
+    """pick_place's scene with the rod held in a carry configuration, at a place pose."""
+    domain = load_domain("pick_place", planner={"name": "rrt_connect", "collision": "exact"})
+    store = _store()
+    inst = domain.check_instance(store["instances"][1])
+    theta = domain.constraint(store["theta"][0])
+    domain.scene(inst)
+    carry, _ = domain.carry(inst, theta.grasp)
+    assert carry is not None
+    yield domain, inst, theta, carry
+    domain.close()
+
+
+class _Recorder:
+    """An exact check that records the configurations it was asked about."""
+
+    def __init__(self, exact):
+        self.exact, self.asked = exact, []
+
+    def __call__(self, q):
+        self.asked.append(np.array(q, copy=True))
+        return self.exact(q)
+
+
+def _edges(rng, lo, hi, count, resolution):
+    for k in range(count):
+        a = rng.uniform(lo, hi)
+        b = a + (rng.uniform(lo, hi) - a) * rng.uniform(0.02, 1.0)
+        steps = len(interpolate(a, b, resolution))
+        yield a, b, (10**6 if k % 3 else int(rng.integers(1, steps + 1)))
+
+
+def _compare(model, exact_model, edges, resolution):
+    """The certified model's check_motion against the generic one (interpolate, then check
+    row by row) on the exact model: answers, counts and the configurations the exact
+    check saw, bit for bit; and single configurations."""
+    checker = model.checker
+    original = checker.exact
+    rec = _Recorder(original)
+    checker.exact = rec
+    asked_fast, asked_generic = [], []
+    try:
+        for a, b, limit in edges:
+            rec.asked = []
+            fast = model.check_motion(a, b, resolution, limit)
+            asked_fast.append(rec.asked)
+            rec.asked = []
+            generic = Robot.check_motion(model, a, b, resolution, limit)
+            asked_generic.append(rec.asked)
+            assert fast == generic == Robot.check_motion(exact_model, a, b, resolution, limit)
+            rec.asked = []
+            assert model.check(b[None]) == exact_model.check(b[None])
+    finally:
+        checker.exact = original
+    for x, y in zip(asked_fast, asked_generic, strict=True):
+        assert len(x) == len(y)
+        for u, v in zip(x, y, strict=True):
+            assert u.tobytes() == v.tobytes()  # the very states interpolate makes
+    assert checker.stats["exact"] + checker.stats["proved"] > 0  # collisions were met
+    assert checker.stats["rows"] > 5 * checker.stats["exact"]
+
+
+def test_arm_motions_with_the_rod_held_equal_the_generic_check(carrying):
+    domain, inst, theta, carry = carrying
+    domain.reset(inst)
+    domain.hold(inst, theta.grasp, carry)
+    domain.robot.set_base(theta.place_pose)
+    exact = MobileArm(domain.robot)
+    model = FC.certified(exact)
+    assert model.checker.certified
+    lo, hi = np.maximum(P.LOWER, carry - 1.2), np.minimum(P.UPPER, carry + 1.2)
+    _compare(model, exact, _edges(np.random.default_rng(1), lo, hi, 60, 0.01), 0.01)
+
+
+def test_arm_motions_at_the_start_equal_the_generic_check(carrying):
+    domain, inst, *_ = carrying
+    scene = domain.reset(inst)
+    model = FC.certified(scene.arm)
+    assert model.checker.certified
+    lo, hi = np.maximum(P.LOWER, P.HOME - 1.5), np.minimum(P.UPPER, P.HOME + 1.5)
+    _compare(model, scene.arm, _edges(np.random.default_rng(2), lo, hi, 60, 0.01), 0.01)
+
+
+def test_base_motions_with_the_rod_held_equal_the_generic_check(carrying):
+    domain, inst, theta, carry = carrying
+    domain.reset(inst)
+    domain.hold(inst, theta.grasp, carry)
+    s = domain.config.psi_scale
+    scene = domain.scene_of()
+    lo, hi = scene.base.lower, scene.base.upper
+    model = FC.certified(scene.base)
+    assert model.checker.certified
+    _compare(model, scene.base, _edges(np.random.default_rng(3), lo, hi, 80, 0.04), 0.04)
+    assert s > 0
+
+
+# -- the geometry the scan trusts ----------------------------------------------------------
+
+def _distance(A: np.ndarray, B: np.ndarray) -> float:
+    """Distance between the convex hulls of the point sets A and B: the least norm of a
+    convex combination of the points of A - B (non-negative least squares, the sum of the
+    weights held at 1 by a heavy extra row)."""
+    D = (A[:, None, :] - B[None, :, :]).reshape(-1, 3)
+    heavy = 1e4
+    M = np.vstack([D.T, heavy * np.ones(len(D))])
+    w, _ = nnls(M, np.concatenate([np.zeros(3), [heavy]]), maxiter=10_000)
+    return float(np.linalg.norm(D.T @ (w / w.sum())))
+
+
+def _corners(c, R, h):
+    signs = np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).T.reshape(-1, 3)
+    return c + (signs * h) @ R.T
+
+
+def test_a_hull_shown_apart_is_apart():
+    """_apart is a proof: whenever it says two sets are at least ``gap`` apart (a hull and
+    a box, or two hulls), they are; and it shows most pairs that are clearly apart."""
+    rng = np.random.default_rng(4)
+    F = np.hstack([np.eye(3), np.zeros((3, 1))])
+    shown = clear = 0
+    for _ in range(100):
+        A = rng.normal(size=(16, 3)) * rng.uniform(0.02, 0.1, 3)
+        R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        R[:, 0] *= np.sign(np.linalg.det(R))
+        h, c = rng.uniform(0.01, 0.3, 3), rng.normal(size=3) * 0.25
+        box = _corners(c, R, h)
+        d = _distance(A, box)
+        B = box + rng.normal(size=(8, 3)) * 0.005
+        hulls = np.concatenate([A, B])
+        d2 = _distance(A, B)
+        for gap in (0.0025, 0.01):
+            if collide._apart(F, A, 0, len(A), F, 0, 0, c, R, h, gap):
+                assert d >= gap - 1e-9
+                shown += 1
+            if collide._apart(F, hulls, 0, 16, F, 16, 24, c, R, h, gap):
+                assert d2 >= gap - 1e-9
+            clear += d > gap + 1e-4
+    assert shown >= 0.95 * clear
+
+
+def test_a_box_face_gap_means_no_pybullet_contact():
+    """Box against box, pybullet's contacts are exact on the face axes: boxes _face_gap
+    puts BOX_GAP apart never touch, and boxes that interpenetrate have no gap."""
+    client = connect()
+    try:
+        table = add_box(client, (0.8, 2.4, 0.4), (2.1, 0.0, 0.2))
+        rod = add_box(client, (0.7, 0.04, 0.04), (2.1, 0.0, 0.5), movable=True)
+        tc, tR, th = np.array([2.1, 0.0, 0.2]), np.eye(3), np.array([0.4, 1.2, 0.2])
+        rng = np.random.default_rng(5)
+        gapped = touching = 0
+        for _ in range(400):
+            yaw, tilt = rng.uniform(-np.pi, np.pi), rng.normal(0, 0.05)
+            q = pb.getQuaternionFromEuler([tilt, 0.0, yaw])
+            R = np.asarray(pb.getMatrixFromQuaternion(q)).reshape(3, 3)
+            h = np.array([0.35, 0.02, 0.02])
+            low = (_corners(np.zeros(3), R, h)[:, 2]).min()
+            c = np.array([rng.uniform(1.8, 2.4), rng.uniform(-1, 1),
+                          0.4 - low + rng.uniform(-2e-3, 2e-3)])
+            pb.resetBasePositionAndOrientation(rod, c.tolist(), q, physicsClientId=client)
+            pb.performCollisionDetection(physicsClientId=client)
+            contact = any(p[8] < 0 for p in pb.getContactPoints(bodyA=rod, bodyB=table,
+                                                                 physicsClientId=client))
+            gap = collide._face_gap(c, R, h, tc, tR, th)
+            if gap >= FC.BOX_GAP:
+                gapped += 1
+                assert not contact
+            if contact:
+                touching += 1
+                assert gap < 0
+        assert gapped > 50 and touching > 50
+    finally:
+        pb.disconnect(physicsClientId=client)
+
+
+# -- memos -----------------------------------------------------------------------------------
+
+def test_the_world_key_follows_the_world(carrying):
+    domain, inst, theta, carry = carrying
+    scene = domain.reset(inst)
+    key = scene.world_key()
+    assert scene.world_key() == key
+    domain.robot.set_base(theta.place_pose)  # the robot moves: not the world
+    domain.robot.set_arm(carry)
+    assert scene.world_key() == key
+    from pipeline.domains.pick_place.world import placed_rod
+
+    scene.put_rod(placed_rod(inst.rod_length, theta.placement))
+    assert scene.world_key() != key
+    domain.hold(inst, theta.grasp, carry)  # held: the rod is the robot's
+    held = scene.world_key()
+    assert held != key and held[2] is None
+    other = domain.check_instance(_store()["instances"][2])
+    domain.scene(other)
+    assert scene.world_key()[:2] != key[:2]
+    domain.scene(inst)
+
+
+def test_remembered_worlds_are_the_worlds_read_afresh(carrying):
+    """Under a world key, the checker's world is the world World.read finds now."""
+    domain, inst, theta, carry = carrying
+
+    def boxes(world):
+        order = np.lexsort(world.box_c.T)
+        return world.box_c[order], world.box_h[order], world.box_R[order]
+
+    for setup in ("start", "held at k_b"):
+        scene = domain.reset(inst)
+        if setup != "start":
+            domain.hold(inst, theta.grasp, carry)
+            domain.robot.set_base(theta.place_pose)
+        for _ in range(2):  # read, then remembered
+            model = FC.certified(scene.arm)
+            skip = {domain.robot.body} | ({scene.rod} if setup != "start" else set())
+            fresh = FC.World.read(scene.client_id, skip)
+            for x, y in zip(boxes(model.checker.world), boxes(fresh), strict=True):
+                np.testing.assert_array_equal(x, y)
+
+
+def test_shortcut_pairs_are_numpys_and_leave_the_generator_as_numpy_does():
+    for seed in range(60):
+        ours, theirs = np.random.default_rng([seed, 1]), np.random.default_rng([seed, 1])
+        pairs = _Pairs(ours)
+        for k in range(1 + seed % 45):
+            n = 3 + (7919 * k + seed) % 70
+            assert pairs.draw(n) == tuple(int(v) for v in sorted(
+                theirs.choice(n, size=2, replace=False)))
+        pairs.close()
+        assert ours.bit_generator.state == theirs.bit_generator.state
+        assert ours.random() == theirs.random()
+
+
+def test_check_order_in_the_scan_is_the_planners():
+    for k in range(1, 300):
+        np.testing.assert_array_equal(collide._check_order(k, k), check_order(k))
