@@ -45,9 +45,9 @@ class GaussianPosterior:
     that are not inert (plus the last m mod 4, see below).  Yet every number it computes
     is the one conditioning on everything in full computes, bit for bit:
 
-    - the product l^T W, the only operation whose rounding depends on more than one
-      number, is still one BLAS call per instance over t rows with the zero rows in place
-      (their positions decide how BLAS groups the sum);
+    - the sums over the t observations (l^T W, one BLAS call per instance, and l.l and
+      l.alpha) still run over all t terms with the zero ones in place: their positions
+      decide how the sums are grouped, hence how they round;
     - over the narrow columns, the call rounds each column as the call over all m
       columns does (OpenBLAS computes each output alike except for the last m mod 4,
       which the narrow layout keeps last).  That is checked, never assumed: for every t
