@@ -490,29 +490,29 @@ def _f3(fb, meta, k):  # pragma: no cover (compiled)
     return fb[o:o + n0 * n1 * n2].reshape((n0, n1, n2))
 
 
-#: the arrays :func:`_scan` reads, in the order :func:`pack` lays them out: name, kind
-#: ("f" float64, "i" int64; booleans as 0 or 1) and number of dimensions
-SCAN_ARRAYS = (
-    ("base", "f", 2), ("origins", "f", 3), ("wrist_lower", "f", 1),
+#: the robot's and the world's arrays :func:`_scan` reads, in the order :func:`pack` lays
+#: them out: name, kind ("f" float64, "i" int64; booleans as 0 or 1), dimensions
+ROBOT_PACK = (
     ("grp_frame", "i", 1), ("grp_c", "f", 2), ("grp_r", "f", 1), ("grp_lo", "i", 1),
     ("grp_hi", "i", 1), ("grp_world", "i", 1), ("sph_c", "f", 2), ("sph_r", "f", 1),
     ("pair_a", "i", 1), ("pair_b", "i", 1), ("rbox_frame", "i", 1), ("rbox_T", "f", 3),
     ("rbox_h", "f", 2), ("rbox_r", "f", 1), ("rbox_pair_b", "i", 1), ("rbox_pair_g", "i", 1),
     ("rbox_solid", "f", 2), ("hull", "f", 2), ("grp_hlo", "i", 1), ("grp_hhi", "i", 1),
-    ("root_c", "f", 1), ("grp_reach", "f", 1), ("rbox_reach", "f", 1),
+    ("root_c", "f", 1), ("grp_reach", "f", 1), ("rbox_reach", "f", 1), ("gaps", "f", 1),
+    ("in_frame", "i", 1), ("in_c", "f", 2), ("in_r", "f", 1), ("in_rbox", "i", 2))
+WORLD_PACK = (
     ("box_c", "f", 2), ("box_R", "f", 3), ("box_h", "f", 2), ("box_r", "f", 1),
     ("box_e", "f", 2), ("og_c", "f", 2), ("og_r", "f", 1), ("og_lo", "i", 1),
-    ("og_hi", "i", 1), ("obs_c", "f", 2), ("obs_r", "f", 1), ("gaps", "f", 1),
-    ("in_frame", "i", 1), ("in_c", "f", 2), ("in_r", "f", 1), ("in_rbox", "i", 2))
+    ("og_hi", "i", 1), ("obs_c", "f", 2), ("obs_r", "f", 1))
 
 
-def pack(values: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The arrays ``values[name]`` of ``SCAN_ARRAYS`` in two buffers (float64, int64) and
-    their layout (offset and shape of each): one argument each for the compiled scan,
-    whose call costs about 70 ns per array argument."""
-    floats, ints, meta = [], [], np.zeros((len(SCAN_ARRAYS), 4), dtype=np.int64)
+def pack(values: dict, layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The arrays ``values[name]`` of ``layout`` (``ROBOT_PACK``, ``WORLD_PACK``) in two
+    buffers (float64, int64) and where each lies (offset and shape): three arguments for
+    the compiled scan, whose call costs about 70 ns per array argument."""
+    floats, ints, meta = [], [], np.zeros((len(layout), 4), dtype=np.int64)
     size = {"f": 0, "i": 0}
-    for k, (name, kind, ndim) in enumerate(SCAN_ARRAYS):
+    for k, (name, kind, ndim) in enumerate(layout):
         a = np.asarray(values[name], dtype=np.float64 if kind == "f" else np.int64)
         if a.ndim != ndim:
             raise ValueError(f"pack: {name} has {a.ndim} dimensions, not {ndim}")
@@ -520,36 +520,34 @@ def pack(values: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         meta[k, 1:1 + ndim] = a.shape
         (floats if kind == "f" else ints).append(a.ravel())
         size[kind] += a.size
-    return (np.ascontiguousarray(np.concatenate(floats)),
+    return (np.ascontiguousarray(np.concatenate(floats) if floats else np.zeros(0)),
             np.ascontiguousarray(np.concatenate(ints) if ints else np.zeros(0, np.int64)),
             meta)
 
 
 @njit(cache=True)
 def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_step,
-          wrist_state, fb, ib, meta, root_frame, root_r, depth):  # pragma: no cover (compiled)
+          wrist_state, base, origins, wrist_lower, rf, ri, rm, wf, wi, wm, root_frame, root_r,
+          depth):  # pragma: no cover (compiled)
     """The scan of :func:`first_uncertain` (``kind`` 2: the configurations' ``frames``
     and ``pre`` are given) and of :func:`edge_first` (``kind`` 0: an arm, 1: a base; the
     configurations are made on the way).  Returns (steps, position, proved): proved when
     the configuration at ``position`` certainly collides (:func:`_proved`; never asked for
-    ``kind`` 2).  ``fb``, ``ib``, ``meta``: the arrays of ``SCAN_ARRAYS`` (:func:`pack`)."""
-    base, origins, wrist_lower = _f2(fb, meta, 0), _f3(fb, meta, 1), _f1(fb, meta, 2)
-    grp_frame, grp_c, grp_r = _f1(ib, meta, 3), _f2(fb, meta, 4), _f1(fb, meta, 5)
-    grp_lo, grp_hi, grp_world = _f1(ib, meta, 6), _f1(ib, meta, 7), _f1(ib, meta, 8)
-    sph_c, sph_r, pair_a, pair_b = _f2(fb, meta, 9), _f1(fb, meta, 10), _f1(ib, meta, 11), _f1(
-        ib, meta, 12)
-    rbox_frame, rbox_T, rbox_h = _f1(ib, meta, 13), _f3(fb, meta, 14), _f2(fb, meta, 15)
-    rbox_r, rbox_pair_b, rbox_pair_g = _f1(fb, meta, 16), _f1(ib, meta, 17), _f1(ib, meta, 18)
-    rbox_solid, hull, grp_hlo, grp_hhi = _f2(fb, meta, 19), _f2(fb, meta, 20), _f1(
-        ib, meta, 21), _f1(ib, meta, 22)
-    root_c, grp_reach, rbox_reach = _f1(fb, meta, 23), _f1(fb, meta, 24), _f1(fb, meta, 25)
-    box_c, box_R, box_h, box_r = _f2(fb, meta, 26), _f3(fb, meta, 27), _f2(fb, meta, 28), _f1(
-        fb, meta, 29)
-    box_e, og_c, og_r = _f2(fb, meta, 30), _f2(fb, meta, 31), _f1(fb, meta, 32)
-    og_lo, og_hi, obs_c, obs_r = _f1(ib, meta, 33), _f1(ib, meta, 34), _f2(fb, meta, 35), _f1(
-        fb, meta, 36)
-    gaps, in_frame, in_c = _f1(fb, meta, 37), _f1(ib, meta, 38), _f2(fb, meta, 39)
-    in_r, in_rbox = _f1(fb, meta, 40), _f2(ib, meta, 41)
+    ``kind`` 2).  ``rf``, ``ri``, ``rm``: the robot's arrays (``ROBOT_PACK``, :func:`pack`);
+    ``wf``, ``wi``, ``wm``: the world's (``WORLD_PACK``)."""
+    grp_frame, grp_c, grp_r = _f1(ri, rm, 0), _f2(rf, rm, 1), _f1(rf, rm, 2)
+    grp_lo, grp_hi, grp_world = _f1(ri, rm, 3), _f1(ri, rm, 4), _f1(ri, rm, 5)
+    sph_c, sph_r, pair_a, pair_b = _f2(rf, rm, 6), _f1(rf, rm, 7), _f1(ri, rm, 8), _f1(ri, rm, 9)
+    rbox_frame, rbox_T, rbox_h = _f1(ri, rm, 10), _f3(rf, rm, 11), _f2(rf, rm, 12)
+    rbox_r, rbox_pair_b, rbox_pair_g = _f1(rf, rm, 13), _f1(ri, rm, 14), _f1(ri, rm, 15)
+    rbox_solid, hull = _f2(rf, rm, 16), _f2(rf, rm, 17)
+    grp_hlo, grp_hhi, root_c = _f1(ri, rm, 18), _f1(ri, rm, 19), _f1(rf, rm, 20)
+    grp_reach, rbox_reach, gaps = _f1(rf, rm, 21), _f1(rf, rm, 22), _f1(rf, rm, 23)
+    in_frame, in_c, in_r, in_rbox = _f1(ri, rm, 24), _f2(rf, rm, 25), _f1(rf, rm, 26), _f2(
+        ri, rm, 27)
+    box_c, box_R, box_h, box_r = _f2(wf, wm, 0), _f3(wf, wm, 1), _f2(wf, wm, 2), _f1(wf, wm, 3)
+    box_e, og_c, og_r = _f2(wf, wm, 4), _f2(wf, wm, 5), _f1(wf, wm, 6)
+    og_lo, og_hi, obs_c, obs_r = _f1(wi, wm, 7), _f1(wi, wm, 8), _f2(wf, wm, 9), _f1(wf, wm, 10)
     G, S, B = grp_c.shape[0], sph_c.shape[0], box_c.shape[0]
     proof = (in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_solid, box_c, box_R, box_h,
              box_r, depth)
@@ -763,13 +761,14 @@ _NO_STATE = np.empty(0)
 _NO_PRE = np.zeros(0, dtype=np.bool_)
 _NO_FRAMES = np.empty((0, 1, 3, 4))
 _NO_CELLS = np.ones((1, 1), dtype=np.int8)
+_NO_CHAIN = (np.zeros((3, 4)), np.zeros((7, 3, 4)), np.zeros(2))
 
 
 def first_uncertain(frames, start, pre, packed) -> int:
     """The first configuration n >= ``start`` (its frames: frames[n], F × 3 × 4) that may
     collide, or N when none may; ``pre[n]`` marks configurations already in doubt.
-    ``packed``: (float buffer, int buffer, layout, root frame, root radius, proof depth),
-    the arrays of ``SCAN_ARRAYS`` laid out by :func:`pack`.
+    ``packed``: the robot's arrays (``ROBOT_PACK``) and the world's (``WORLD_PACK``) as
+    :func:`pack` lays them out, then the root frame and radius and the proof depth.
 
     Groups with ``grp_world`` are tested against the world's boxes and sphere groups
     (og_*: bounding sphere and range of obs_c / obs_r); the group pairs (pair_a[k],
@@ -786,11 +785,11 @@ def first_uncertain(frames, start, pre, packed) -> int:
     each group and robot box: boxes they miss are not looked at.
     """
     return _scan(2, frames, pre, _NO_STATE, _NO_STATE, 1.0, 0, start, 1.0, 1.0, _NO_CELLS,
-                 *packed)[1]
+                 *_NO_CHAIN, *packed)[1]
 
 
 def edge_first(a, b, resolution, limit, start, kind, psi_scale, wrist_step, wrist_state,
-               packed) -> tuple[int, int, bool]:
+               chain, packed) -> tuple[int, int, bool]:
     """:func:`first_uncertain` over the straight motion a→b as
     :meth:`pipeline.planning.base.Robot.check_motion` checks it, without making its
     states first: the states of :func:`pipeline.planning.base.interpolate` (``steps`` of
@@ -798,13 +797,14 @@ def edge_first(a, b, resolution, limit, start, kind, psi_scale, wrist_step, wris
     ``min(steps, limit)`` of them, from position ``start``.  Returns (steps, the first
     position >= start that may collide, or min(steps, limit) when none may, whether it
     certainly collides: an inner sphere or robot box deep in a world box, or an inner
-    sphere deep in a robot box it is tested against).  ``kind`` 0: an arm (the chain of
-    :func:`arm_frames` on ``base``, and the wrist table ``wrist_state`` on a grid of
-    ``wrist_step`` from ``wrist_lower``: a cell not known free is a doubt; a cell not
+    sphere deep in a robot box it is tested against).  ``kind`` 0: an arm (``chain``:
+    (base frame, joint origins, wrist grid origin): the chain of :func:`arm_frames` on the
+    base frame, and the wrist table ``wrist_state`` on a grid of ``wrist_step`` from the
+    wrist grid origin: a cell not known free is a doubt; a cell not
     known at all ends the scan with position -1 - k, for the caller to fill it); 1: a base
     (:func:`planar_frames`)."""
     return _scan(kind, _NO_FRAMES, _NO_PRE, a, b, resolution, limit, start, psi_scale,
-                 wrist_step, wrist_state, *packed)
+                 wrist_step, wrist_state, *chain, *packed)
 
 
 @njit(cache=True)

@@ -58,10 +58,8 @@ GAPS = np.array([HULL_GAP, CARRIED_GAP, 2 * HULL_GAP, BOX_GAP])
 INTERNAL_CLEARANCE = 1e-4
 
 
-_NO_FRAME = np.zeros((3, 4))
-_NO_ORIGINS = np.zeros((7, 3, 4))
-_NO_LOWER = np.zeros(2)
 _NO_CELLS = np.ones((1, 1), dtype=np.int8)
+_NO_CHAIN = (np.zeros((3, 4)), np.zeros((7, 3, 4)), np.zeros(2))
 
 
 def _matrices(quaternions: np.ndarray) -> np.ndarray:
@@ -129,6 +127,7 @@ class World:
         self.box_r = np.linalg.norm(self.box_h, axis=1)
         self.box_e = np.ascontiguousarray(np.einsum("bij,bj->bi", np.abs(self.box_R),
                                                     self.box_h))  # axis-aligned extents
+        self._pack = None
         if self.og_lo is None:  # one group per sphere
             n = len(self.sph_r)
             self.og_lo, self.og_hi = np.arange(n), np.arange(1, n + 1)
@@ -175,6 +174,15 @@ class World:
                    np.array([g[2] for g in groups]).reshape(-1, 3),
                    np.array([g[3] for g in groups]))
 
+
+    def packed(self) -> tuple:
+        """The world's arrays as :func:`pipeline.sim.collide.pack` lays them out (once)."""
+        if self._pack is None:
+            self._pack = collide.pack(dict(
+                box_c=self.box_c, box_R=self.box_R, box_h=self.box_h, box_r=self.box_r,
+                box_e=self.box_e, og_c=self.og_c, og_r=self.og_r, og_lo=self.og_lo,
+                og_hi=self.og_hi, obs_c=self.sph_c, obs_r=self.sph_r), collide.WORLD_PACK)
+        return self._pack
 
     def join(self, other: World) -> World | None:
         """This world and ``other``'s boxes (None when ``other`` has spheres too)."""
@@ -304,7 +312,7 @@ class SphereRobot:
         self.rbox_reach = np.asarray(self.root[4], float)
         if self.in_rbox is None:
             self.in_rbox = np.zeros((len(self.in_r), len(self.rbox_T)), dtype=np.bool_)
-        self._packs: dict[int, tuple] = {}
+        self._pack: tuple | None = None
 
     @classmethod
     def build(cls, groups, pairs=(), boxes=(), box_pairs=(), inner=None, hulls=None,
@@ -347,26 +355,15 @@ class SphereRobot:
             pre = np.zeros(len(frames), dtype=np.bool_)
         return int(collide.first_uncertain(frames, start, pre, self.packed(world)))
 
-    def packed(self, world: World, base=_NO_FRAME, origins=_NO_ORIGINS,
-               wrist_lower=_NO_LOWER) -> tuple:
+    def packed(self, world: World) -> tuple:
         """The robot's and ``world``'s arrays as :func:`pipeline.sim.collide.pack` lays
-        them out for the compiled scan, with the root frame and radius and the proof depth
-        (an arm's base frame and chain, and the wrist table's grid origin, when given);
-        remembered per world and those."""
-        key = (id(world), np.asarray(base).tobytes(), np.asarray(origins).tobytes(),
-               np.asarray(wrist_lower).tobytes())
-        if key in self._packs:
-            return self._packs[key][1]
-        values = {name: getattr(self, name, None) for name, _, _ in collide.SCAN_ARRAYS}
-        values.update(base=base, origins=origins, wrist_lower=wrist_lower, gaps=GAPS,
-                      **{name: getattr(world, name) for name in (
-                          "box_c", "box_R", "box_h", "box_r", "box_e", "og_c", "og_r",
-                          "og_lo", "og_hi")}, obs_c=world.sph_c, obs_r=world.sph_r)
-        packed = (*collide.pack(values), self.root_frame, self.root_r, PROOF_DEPTH)
-        if len(self._packs) > 64:
-            self._packs.clear()
-        self._packs[key] = (world, packed)  # the world kept: its id stays its own
-        return packed
+        them out for the compiled scan, then the root frame and radius and the proof depth
+        (each packed once)."""
+        if self._pack is None:
+            values = {name: getattr(self, name) for name, _, _ in collide.ROBOT_PACK
+                      if name != "gaps"}
+            self._pack = collide.pack({**values, "gaps": GAPS}, collide.ROBOT_PACK)
+        return (*self._pack, *world.packed(), self.root_frame, self.root_r, PROOF_DEPTH)
 
     def surely_hits(self, frames: np.ndarray, n: int, world: World) -> bool:
         """Does row n of ``frames`` certainly collide (a robot box or an inner sphere deep
@@ -546,10 +543,10 @@ class SphereChecker:
         b = np.ascontiguousarray(b, dtype=float)
         if self._args is None:
             self._args = self._motion_args()
-        kind, psi, step, table, packed = self._args
+        kind, psi, step, table, chain, packed = self._args
         cells = table.state if table is not None else _NO_CELLS
         steps, k, proved = collide.edge_first(a, b, resolution, limit, 0, kind, psi, step,
-                                              cells, packed)
+                                              cells, chain, packed)
         m = min(steps, limit)
         self.stats["rows"] += m
         while k < m:
@@ -559,7 +556,7 @@ class SphereChecker:
                 table.uncertain(a + ((order + 1) / steps)[:, None] * (b - a))
                 cells = table.state
                 steps, k, proved = collide.edge_first(a, b, resolution, limit, k, kind, psi,
-                                                      step, cells, packed)
+                                                      step, cells, chain, packed)
                 continue
             if proved:
                 self.stats["proved"] += 1
@@ -569,7 +566,7 @@ class SphereChecker:
             if self.exact(a + (int(check_order(steps)[k]) + 1) / steps * (b - a)):
                 return False, k + 1
             steps, k, proved = collide.edge_first(a, b, resolution, limit, k + 1, kind, psi,
-                                                  step, cells, packed)
+                                                  step, cells, chain, packed)
         return m >= steps, m
 
     def _one(self, state: np.ndarray) -> tuple[bool, int]:
@@ -579,13 +576,14 @@ class SphereChecker:
         q = np.ascontiguousarray(state, dtype=float)
         if self._args is None:
             self._args = self._motion_args()
-        kind, psi, step, table, packed = self._args
+        kind, psi, step, table, chain, packed = self._args
         cells = table.state if table is not None else _NO_CELLS
-        _, k, proved = collide.edge_first(q, q, 1.0, 1, 0, kind, psi, step, cells, packed)
+        _, k, proved = collide.edge_first(q, q, 1.0, 1, 0, kind, psi, step, cells, chain,
+                                          packed)
         if k < 0:  # a wrist cell never computed
             table.uncertain(q[None])
             _, k, proved = collide.edge_first(q, q, 1.0, 1, 0, kind, psi, step, table.state,
-                                              packed)
+                                              chain, packed)
         if k >= 1:
             return True, 1
         if proved:
@@ -595,15 +593,17 @@ class SphereChecker:
         return (False, 1) if self.exact(state) else (True, 1)
 
     def _motion_args(self) -> tuple:
-        """(kind, psi_scale, wrist grid step, wrist table, packed arrays) of
+        """(kind, psi_scale, wrist grid step, wrist table, chain, packed arrays) of
         :func:`pipeline.sim.collide.edge_first`."""
         kind = self._motion
+        packed = self.robot.packed(self.world)
         if kind[0] == "arm":
             table = kind[3]
-            return 0, 1.0, wrist.STEP, table, self.robot.packed(
-                self.world, np.ascontiguousarray(kind[1]), np.ascontiguousarray(kind[2]),
-                np.asarray(table.lower, float))
-        return 1, float(kind[1]), 1.0, None, self.robot.packed(self.world)
+            chain = (np.ascontiguousarray(kind[1], dtype=float),
+                     np.ascontiguousarray(kind[2], dtype=float),
+                     np.ascontiguousarray(table.lower, dtype=float))
+            return 0, 1.0, wrist.STEP, table, chain, packed
+        return 1, float(kind[1]), 1.0, None, _NO_CHAIN, packed
 
 
 def _arm_frames_fn(base: np.ndarray):
@@ -812,6 +812,34 @@ class CertifiedRobot(Robot):
         return getattr(self.model, name)
 
 
+_COMPILED = False
+
+
+def compile_kernels() -> None:
+    """Load (or, the first time after an install or a change, compile) the compiled
+    kernels this module calls, with the argument types it calls them with, once per
+    process.  :func:`certified` calls it before a planning call's budget starts its
+    wall-clock cap, so that compiling (tens of seconds with a cold numba cache) can never
+    turn an entry into "timeout"."""
+    global _COMPILED
+    if _COMPILED:
+        return
+    robot = SphereRobot.build([(0, np.zeros((1, 3)), np.array([0.01]), True)],
+                              boxes=[(0, np.eye(4), np.full(3, 0.01))], box_pairs=[(0, 0)],
+                              inner=(np.zeros(1, np.int64), np.zeros((1, 3)), np.array([0.005]),
+                                     np.zeros(1, np.int64)),
+                              hulls=[np.zeros((4, 3))], reach=np.zeros(8))
+    world = World(np.array([[0.0, 0.0, 0.0]]), np.eye(3)[None], np.full((1, 3), 0.1),
+                  np.zeros((0, 3)), np.zeros(0), [-1])
+    frames = _arm_frames_fn(np.eye(4))(np.zeros((2, 7)))
+    robot.first(frames, world, 0, np.zeros(2, dtype=np.bool_))
+    robot.surely_hits(frames, 0, world)
+    collide.planar_frames(np.zeros((1, 3)), 1.0, np.empty((1, 1, 3, 4)))
+    collide.wrist_cells(np.zeros((1, 7)), np.zeros(2), wrist.STEP, np.ones((2, 2), np.int8),
+                        np.empty(1, dtype=np.bool_))
+    _COMPILED = True
+
+
 def certified(model):
     """``model`` (a robot model) with sphere-certified checks, or ``model`` itself when it
     is not one this module knows.  Call it when a planning call starts: the world is read
@@ -819,6 +847,7 @@ def certified(model):
     from pipeline.sim.mobile import MobileArm, MobileBase
     from pipeline.sim.panda import Panda
 
+    compile_kernels()
     if isinstance(model, Panda):
         checker = arm_checker(model.client, model.body, model.ignored_pairs, model.collides_at)
     elif isinstance(model, MobileArm):
