@@ -11,6 +11,7 @@ from pipeline.domains import load_domain
 from pipeline.planning import PlannerSettings, Status, interpolate, path_is_free
 from pipeline.planning.trajopt import TrajOpt, TrajOptOptions, optimise
 from pipeline.sim import panda as P
+from pipeline.sim.fast_distance import bounded
 from tests.replay import child_env
 
 START, GOAL = np.array([0.0, 0.0]), np.array([1.0, 0.0])
@@ -157,3 +158,148 @@ def test_bad_trajopt_settings_are_refused_naming_the_key():
         load_domain("grasp_arm", planner={"name": "trajopt", "trajopt_waypoints": 2})
     with pytest.raises(ValueError, match="trajopt_"):
         load_domain("grasp_base", planner={"name": "trajopt", "trajopt_margin": -1.0})
+
+
+# -- the fast paths give today's answers (issue 27, item 3) ---------------------------------
+#: TrajOpt's module before its speed-up (box_lbfgsb, bounded distances, the certified
+#: re-check): the answers of every setting must stay what they were
+BEFORE = "4e14f96"
+
+
+def test_box_lbfgsb_is_scipys_minimize_bit_for_bit():
+    import scipy
+    from scipy.optimize import minimize
+
+    from pipeline.planning.blas import single_thread
+    from pipeline.planning.trajopt import LBFGSB, _loop_agrees, box_lbfgsb
+
+    version = tuple(int(v) for v in scipy.__version__.split(".")[:2])
+    rng = np.random.default_rng(7)
+    with single_thread():  # as TrajOpt calls it (BLAS threads on a busy machine crawl)
+        if (1, 15) <= version <= (1, 17):
+            assert _loop_agrees()  # the loop copies these versions' driver: it runs
+        for size in (1, 3, 12, 60, 150):
+            for scale in (1e-3, 1.0, 1e3):  # weak, medium, strong coupling of the hinges
+                A = rng.normal(size=(size, max(1, size // 2)))
+                Q, c = scale * (A @ A.T), rng.normal(size=size)
+
+                def dual(lam, Q=Q, c=c):
+                    Ql = Q @ lam
+                    return 0.5 * float(lam @ Ql) + float(c @ lam), Ql + c
+
+                mu = float(rng.choice([10.0, 1e3]))
+                lam0 = np.where(c < 0, mu, 0.0)
+                ref = minimize(dual, lam0, jac=True, method="L-BFGS-B",
+                               bounds=[(0.0, mu)] * size, options=dict(LBFGSB)).x
+                assert box_lbfgsb(dual, lam0, mu).tobytes() == ref.tobytes(), (size, scale)
+
+
+def _through(goals, count=25):
+    """Configurations on straight lines from home to ``goals`` (the arm sweeps through
+    what stands around it) and at the goals."""
+    t = np.linspace(0.0, 1.0, count)[:, None]
+    return np.vstack([P.HOME + t * (g - P.HOME) for g in goals])
+
+
+def _assert_same_contacts(model, states, query=0.05):
+    full = model.distance_model(query)
+    fast = bounded(model, query)
+    asked = fast.close_mask(states)
+    assert asked.mean() < 0.5  # most bodies are left out ...
+    for q, got in zip(states, fast.many(states), strict=True):
+        want = full(q)
+        assert got[0].tobytes() == want[0].tobytes() and got[1].tobytes() == want[1].tobytes()
+    assert sum(len(full(q)[0]) for q in states) > 20  # ... and the lines pass close to some
+
+
+def test_bounded_distances_are_the_full_models_bit_for_bit(domain):
+    import pybullet as pb
+
+    spec = domain.sample_instance(3)
+    scene = domain.build_scene(spec)
+    try:
+        arm = scene.arms[0]
+        rng = np.random.default_rng(0)
+        goals = rng.uniform(P.LOWER, P.UPPER, (10, 7))
+        # a body that is neither a box nor a Panda: always asked
+        ball = pb.createMultiBody(0, pb.createCollisionShape(
+            pb.GEOM_SPHERE, radius=0.05, physicsClientId=arm.client),
+            basePosition=[0.4, 0.2, 0.6], physicsClientId=arm.client)
+        states = _through(goals)
+        _assert_same_contacts(arm, states)
+        assert bounded(arm, 0.05).close_mask(states)[:, arm.obstacles().index(ball)].all()
+    finally:
+        scene.close()
+
+
+def test_bounded_distances_of_the_mobile_arm_are_the_full_models_bit_for_bit():
+    from pipeline.sim.mobile import UnladenArm
+    from tests.test_mobile_domains import FACING, OPEN_TABLE
+
+    base = load_domain("grasp_base")
+    scene = base.build_scene(OPEN_TABLE)
+    try:
+        scene.robot.set_base(FACING)
+        goals = np.random.default_rng(1).uniform(P.LOWER, P.UPPER, (10, 7))
+        model = UnladenArm(scene.robot)
+        _assert_same_contacts(model, _through(goals))
+    finally:
+        scene.close()
+
+
+def _before():
+    """TrajOpt's module at BEFORE (from git), or None where git or the revision is missing."""
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    try:
+        source = subprocess.run(["git", "-C", str(root), "show",
+                                 f"{BEFORE}:pipeline/planning/trajopt.py"],
+                                capture_output=True, check=True, text=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    name = "tests._trajopt_before_speedup"
+    module = importlib.util.module_from_spec(importlib.util.spec_from_loader(name, None))
+    sys.modules[name] = module
+    exec(compile(source, "trajopt_before_speedup.py", "exec"), module.__dict__)
+    return name
+
+
+def _entries(name):
+    """A sample of entries of ``name``: (instance, constraint, seed)."""
+    if name == "grasp_arm":
+        d = load_domain("grasp_arm")
+        return [(d.sample_instance(s), j, j) for s in (11, 12) for j in range(0, 162, 6)]
+    d = load_domain("grasp_base")
+    specs = [d.sample_instance(s) for s in range(4)]
+    theta = [r.constraint for r in (d.raw_plan(s, seed=k) for k, s in enumerate(specs))
+             if r.plan.feasible]
+    assert theta
+    return [(s, row, 3 * i + j) for i, s in enumerate(specs) for j, row in enumerate(theta)]
+
+
+@pytest.mark.parametrize("name", ["grasp_arm", "grasp_base"])
+def test_answers_are_those_of_collision_exact_and_of_the_code_before(name, monkeypatch):
+    """The default's fast paths (bounded distances, the certified re-check, the direct
+    L-BFGS-B loop, memoised operators) change no bit of an answer: the same status, step,
+    checks and path as ``planner.collision=exact`` and as TrajOpt's code at BEFORE."""
+    from pipeline.planning import registry
+
+    entries = _entries(name)
+
+    def answers(planner):
+        d = load_domain(name, planner=planner)
+        out = [d.plan(spec, row, seed=seed) for spec, row, seed in entries]
+        d.close()
+        return [(int(r.status), r.step, r.checks, None if r.path is None else r.path.tobytes())
+                for r in out]
+
+    new = answers(TRAJOPT)
+    assert sum(a[0] == int(Status.OK) for a in new) >= 3  # TrajOpt ran and succeeded
+    assert answers({**TRAJOPT, "collision": "exact"}) == new
+    before = _before()
+    if before is None:
+        pytest.skip(f"git revision {BEFORE} not available: compared with exact only")
+    monkeypatch.setitem(registry.PLANNERS, "trajopt", f"{before}:TrajOpt")
+    assert answers(TRAJOPT) == new

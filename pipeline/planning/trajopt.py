@@ -23,10 +23,19 @@ still closer than the margin somewhere, mu is multiplied by ``penalty_scale``.
 Initialisation is the straight line in joint space, as in TrajOpt; nothing is random, so the
 result is a function of the inputs alone.  The waypoints are only checked at the waypoints
 (no swept volumes): the caller re-checks the result densely before calling it feasible.
+
+Cost (issue 27, item 3).  With ``planner.collision=spheres`` (the default) pybullet is asked
+for distances only to bodies a sphere bound cannot rule out (:mod:`pipeline.sim.fast_distance`)
+and the dense re-check runs the sphere pre-check (:mod:`pipeline.sim.fast_check`); the dual
+is solved by scipy's L-BFGS-B routine through a copy of minimize's driver loop
+(:func:`box_lbfgsb`), and the operators of the cost are made once per size.  None of this
+changes a bit of a result: ``collision=exact`` and the code before give the same statuses,
+checks and paths (tests/test_trajopt.py, benchmarks/bench_trajopt.py).
 """
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 
@@ -87,18 +96,17 @@ class _Problem:
         self._contacts = contacts
         self.queries = 0
         # cost = |D z - e|^2 with D the finite-difference operator on the interior waypoints
+        # (D, 2 D^T and H = 2 D^T D depend on the sizes alone: made once per size)
         n, k = self.inner, self.dof
-        diff = np.zeros(((n + 1) * k, n * k))
-        for t in range(n + 1):
-            if t < n:
-                diff[t * k:(t + 1) * k, t * k:(t + 1) * k] = np.eye(k)
-            if t > 0:
-                diff[t * k:(t + 1) * k, (t - 1) * k:t * k] -= np.eye(k)
+        self.D, self._2Dt, self.H = _operators(n, k)
         offset = np.zeros((n + 1) * k)
         offset[:k] = self.start
         offset[-k:] = -self.goal
-        self.D, self.e = diff, offset
-        self.H = 2 * diff.T @ diff
+        self.e = offset
+        self._2Dte = self._2Dt @ offset  # the linear term of the cost, 2 D^T e
+        self._lo = np.tile(self.lower, self.inner)
+        self._hi = np.tile(self.upper, self.inner)
+        self._factors: dict[float, tuple] = {}  # rho -> Cholesky factor of H + rho I
 
     def cost(self, z) -> float:
         r = self.D @ z - self.e
@@ -116,8 +124,12 @@ class _Problem:
         points = [(x[t], ((t - 1, 1.0),)) for t in range(1, self.inner + 1)]
         points += [(0.5 * (x[t] + x[t + 1]), ((t - 1, 0.5), (t, 0.5)))
                    for t in range(self.inner + 1)]
-        for q, weights in points:
-            dist, grad = self._contacts(q)
+        many = getattr(self._contacts, "many", None)
+        if many is not None:  # all configurations at once (fast_distance.BoundedDistances)
+            answers = many(np.array([q for q, _ in points]))
+        else:
+            answers = (self._contacts(q) for q, _ in points)
+        for (_, weights), (dist, grad) in zip(points, answers, strict=True):
             self.queries += 1
             if not len(dist):
                 continue
@@ -153,10 +165,11 @@ class _Problem:
         multipliers, each bounded to [0, mu], which L-BFGS-B solves exactly for the few
         dozen active pairs; then z = P^-1 (q + G^T lambda).
         """
-        n = self.inner * self.dof
-        P = self.H + rho * np.eye(n)
-        q = 2 * self.D.T @ self.e + rho * z0
-        factor = cho_factor(P)
+        factor = self._factors.get(rho)
+        if factor is None:
+            n = self.inner * self.dof
+            factor = self._factors[rho] = cho_factor(self.H + rho * np.eye(n))
+        q = self._2Dte + rho * z0
         z = cho_solve(factor, q)
         if len(d):
             h = self.opts.margin - d + G @ z0
@@ -169,14 +182,111 @@ class _Problem:
                 return 0.5 * float(lam @ Ql) + float(c_lin @ lam), Ql + c_lin
 
             lam0 = np.where(c_lin < 0, mu, 0.0)
-            res = minimize(dual, lam0, jac=True, method="L-BFGS-B",
-                           bounds=[(0.0, mu)] * len(d),
-                           options={"maxiter": 500, "ftol": 1e-14, "gtol": 1e-10})
-            z = z + PiG @ res.x
-        lo = np.maximum(np.tile(self.lower, self.inner), z0 - radius)
-        hi = np.minimum(np.tile(self.upper, self.inner), z0 + radius)
+            z = z + PiG @ box_lbfgsb(dual, lam0, mu)
+        lo = np.maximum(self._lo, z0 - radius)
+        hi = np.minimum(self._hi, z0 + radius)
         z = np.clip(z, lo, hi)
         return z, self.model(z, z0, d, G, mu, rho)
+
+
+#: L-BFGS-B's settings for the dual (scipy.optimize.minimize's options, as always used here)
+LBFGSB = {"maxiter": 500, "ftol": 1e-14, "gtol": 1e-10}
+
+
+def box_lbfgsb(fun, x0: np.ndarray, upper: float) -> np.ndarray:
+    """The minimiser of ``fun`` (``x -> (value, gradient)``) over the box [0, upper]^n from
+    ``x0`` by L-BFGS-B with :data:`LBFGSB`: bit for bit what
+    ``scipy.optimize.minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=[(0, upper)] *
+    n, options=LBFGSB).x`` returns, without minimize's wrappers (about 0.15 ms per
+    evaluation of ``fun``, more than the evaluation).  Where this scipy's L-BFGS-B routine
+    does not answer as :func:`_lbfgsb_loop` expects (checked once per process against
+    minimize), minimize itself is called."""
+    if _loop_agrees():
+        return _lbfgsb_loop(fun, x0, upper, **LBFGSB)
+    return minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=[(0.0, upper)] * len(x0),
+                    options=dict(LBFGSB)).x
+
+
+def _lbfgsb_loop(fun, x0, upper, *, maxiter: int, ftol: float, gtol: float,
+                 maxcor: int = 10, maxls: int = 20, maxfun: int = 15000) -> np.ndarray:
+    """scipy's L-BFGS-B driver (``scipy.optimize._lbfgsb_py._minimize_lbfgsb``, scipy >=
+    1.15) for bounds [0, upper] on every variable: the same calls of the compiled routine
+    with the same arguments, ``fun`` evaluated where minimize's memo would evaluate it
+    (at the start and at every new point), the same stopping rules."""
+    from scipy.optimize import _lbfgsb
+
+    m, n = maxcor, len(x0)
+    x = np.array(np.clip(np.asarray(x0, float), 0.0, upper), dtype=np.float64)
+    f0, g0 = fun(x.copy())  # minimize evaluates at the start when it sets up
+    last, nfev = x.copy(), 1
+    low, high = np.zeros(n), np.full(n, float(upper))
+    nbd = np.full(n, 2, dtype=np.int32)
+    f, g = np.array(0.0, dtype=np.float64), np.zeros(n)
+    wa = np.zeros(2 * m * n + 5 * n + 11 * m * m + 8 * m)
+    iwa = np.zeros(3 * n, dtype=np.int32)
+    task, ln_task = np.zeros(2, dtype=np.int32), np.zeros(2, dtype=np.int32)
+    lsave, isave = np.zeros(4, dtype=np.int32), np.zeros(44, dtype=np.int32)
+    dsave = np.zeros(29)
+    factr = ftol / np.finfo(float).eps
+    iterations = 0
+    while True:
+        g = g.astype(np.float64)
+        _lbfgsb.setulb(m, x, low, high, nbd, f, g, factr, gtol, wa, iwa, task, lsave, isave,
+                       dsave, maxls, ln_task)
+        if task[0] == 3:  # f and g wanted at x
+            if x[0] != last[0] or not (x == last).all():  # np.array_equal, faster
+                last = x.copy()
+                f0, g0 = fun(x.copy())
+                nfev += 1
+            f, g = f0, g0
+        elif task[0] == 1:  # a new iteration
+            iterations += 1
+            if iterations >= maxiter:
+                task[0], task[1] = 5, 504
+            elif nfev > maxfun:
+                task[0], task[1] = 5, 502
+        else:
+            return x
+
+
+@functools.cache
+def _loop_agrees() -> bool:
+    """Does :func:`_lbfgsb_loop` give minimize's answers bit for bit (a few box-bounded
+    quadratics, some hitting the bounds, one stopped by maxiter)?"""
+    try:
+        rng = np.random.default_rng(0)
+        for size, maxiter in ((1, 500), (7, 500), (40, 500), (40, 3)):
+            A = rng.normal(size=(size, size))
+            Q, c = A @ A.T + 0.1 * np.eye(size), rng.normal(size=size)
+
+            def fun(x, Q=Q, c=c):
+                Qx = Q @ x
+                return 0.5 * float(x @ Qx) + float(c @ x), Qx + c
+
+            x0 = np.where(c < 0, 2.0, 0.0)
+            opts = {**LBFGSB, "maxiter": maxiter}
+            ref = minimize(fun, x0, jac=True, method="L-BFGS-B",
+                           bounds=[(0.0, 2.0)] * size, options=opts).x
+            if ref.tobytes() != _lbfgsb_loop(fun, x0, 2.0, **opts).tobytes():
+                return False
+        return True
+    except Exception:  # another scipy: its own driver
+        return False
+
+
+@functools.lru_cache(maxsize=8)
+def _operators(n: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(D, 2 D^T, H = 2 D^T D) for ``n`` interior waypoints of ``k`` joints (read-only)."""
+    diff = np.zeros(((n + 1) * k, n * k))
+    for t in range(n + 1):
+        if t < n:
+            diff[t * k:(t + 1) * k, t * k:(t + 1) * k] = np.eye(k)
+        if t > 0:
+            diff[t * k:(t + 1) * k, (t - 1) * k:t * k] -= np.eye(k)
+    out = diff, 2 * diff.T, 2 * diff.T @ diff
+    for a in out:
+        a.flags.writeable = False
+    return out
 
 
 def optimise(start, goal, lower, upper, contacts: DistanceModel,
@@ -261,17 +371,33 @@ class TrajOpt(Planner):
 
     def plan(self, robot, start, goal, seed: int = 0, budget=None) -> PlanResult:
         opts = self.options
+        checker, contacts = self.models(robot, opts.margin + QUERY_BUFFER)
         deadline = time.perf_counter() + self.settings.wall_cap_s
-        res = optimise(start, goal, robot.lower, robot.upper,
-                       robot.distance_model(opts.margin + QUERY_BUFFER), opts,
+        res = optimise(start, goal, robot.lower, robot.upper, contacts, opts,
                        deadline=deadline)
         checks = res.distance_queries
         if time.perf_counter() > deadline:
             return PlanResult(Status.TIMEOUT, checks=checks)
         path = res.trajectory
-        ok, used = recheck(robot, path, self.settings.resolution)
+        ok, used = recheck(checker, path, self.settings.resolution)
         checks += used
         if not ok:  # the margin is TrajOpt's target; the dense re-check decides feasibility
             status = Status.PATH_IN_COLLISION if res.converged else Status.NOT_CONVERGED
             return PlanResult(status, checks=checks)
         return PlanResult(Status.OK, path=path, length=path_length(path), checks=checks)
+
+    def models(self, robot, query: float):
+        """(the robot model that re-checks the result, the distance model), made once the
+        scene is set for the call and before its wall-clock cap starts.  With
+        ``planner.collision=spheres`` (the default) the re-check runs the sphere
+        pre-check (:func:`pipeline.sim.fast_check.certified`) and pybullet is asked for
+        distances only to bodies that may be within ``query``
+        (:func:`pipeline.sim.fast_distance.bounded`); both give the answers of
+        ``collision=exact`` (pybullet everywhere), bit for bit, so the setting changes
+        only the cost."""
+        if getattr(self.settings, "collision", "exact") != "spheres":
+            return robot, robot.distance_model(query)
+        from pipeline.sim.fast_check import certified
+        from pipeline.sim.fast_distance import bounded
+
+        return certified(robot), bounded(robot, query)

@@ -1,0 +1,187 @@
+"""Signed distances for TrajOpt with pybullet asked only about bodies that may be close.
+
+A Panda's distance model (:meth:`pipeline.sim.panda.Panda.distances`) asks pybullet for the
+closest points between the arm and *every* other body of the client at every
+configuration, although at a given configuration only one or two bodies are within the
+query distance: in grasp_arm and grasp_base that is 17 to 25 ``getClosestPoints`` calls per
+configuration, most of a TrajOpt call's time.
+
+:func:`bounded` gives the same model with a cheap test in front.  The arm's conservative
+sphere model (:func:`pipeline.sim.spheres.panda_spheres`: every point of every link's
+collision hull lies in one of its link's spheres, whose radii carry ``fast_check.MARGIN``
+for pybullet's collision margin) bounds the distance from below: from a sphere to a box
+body it is the distance from the centre to the box less the radius; to another Panda it is
+the distance between the two Pandas' spheres.  A body whose bound exceeds the query
+distance by ``SAFETY`` has no point closer than the query (pybullet reports none for it),
+so only the other bodies are asked, in their original order, by the Panda's own
+``distances``: the distances and gradients are the same, bit for bit, as those of the full
+model (tests/test_trajopt.py compares them).  A configuration with no body in reach is not
+even set in pybullet.  Bodies that are neither a box nor a Panda are always asked.  The
+arm's base link is left out of the bound, as the full model leaves out its points.
+
+The world is read when :func:`bounded` is called and assumed fixed while the model is used
+(one model per planning call, made once the scene is set, as ``fast_check.certified``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from pipeline.sim import collide, fast_check, spheres
+
+#: how far beyond the query distance (metres) a body's lower bound must be for the body to
+#: be left out: far above pybullet's collision margin (1 mm) and the kinematics' rounding
+#: (1e-7 m), both already covered by the spheres' own margin
+SAFETY = 0.01
+
+
+@njit(cache=True)
+def near_bodies(frames, sph_frame, sph_c, sph_r, box_c, box_R, box_h, obs_c, obs_r, obs_lo,
+                obs_hi, reach, out):  # pragma: no cover (compiled)
+    """out[n, b] = may a sphere (sph_c[s] in frame sph_frame[s] of frames[n], radius
+    sph_r[s]) come within ``reach`` of box b (centre box_c[b], axes the columns of box_R[b],
+    half extents box_h[b]), for b < len(box_c); of sphere group p (obs_c[obs_lo[p]:
+    obs_hi[p]], radii obs_r) at column len(box_c) + p."""
+    n_box = box_c.shape[0]
+    centres = np.empty((sph_c.shape[0], 3))
+    for n in range(frames.shape[0]):
+        for s in range(sph_c.shape[0]):
+            F = frames[n, sph_frame[s]]
+            for i in range(3):
+                centres[s, i] = (F[i, 0] * sph_c[s, 0] + F[i, 1] * sph_c[s, 1]
+                                 + F[i, 2] * sph_c[s, 2] + F[i, 3])
+        for b in range(n_box):
+            out[n, b] = False
+            for s in range(sph_c.shape[0]):
+                gap = 0.0
+                for j in range(3):
+                    local = 0.0
+                    for i in range(3):
+                        local += (centres[s, i] - box_c[b, i]) * box_R[b, i, j]
+                    over = abs(local) - box_h[b, j]
+                    if over > 0.0:
+                        gap += over * over
+                limit = reach + sph_r[s]
+                if gap <= limit * limit:
+                    out[n, b] = True
+                    break
+        for p in range(obs_lo.shape[0]):
+            hit = False
+            for s in range(sph_c.shape[0]):
+                for m in range(obs_lo[p], obs_hi[p]):
+                    dx = centres[s, 0] - obs_c[m, 0]
+                    dy = centres[s, 1] - obs_c[m, 1]
+                    dz = centres[s, 2] - obs_c[m, 2]
+                    limit = reach + sph_r[s] + obs_r[m]
+                    if dx * dx + dy * dy + dz * dz <= limit * limit:
+                        hit = True
+                        break
+                if hit:
+                    break
+            out[n, n_box + p] = hit
+
+
+_COMPILED = False
+
+
+def compile_kernel() -> None:
+    """Load (or compile, the first time) :func:`near_bodies` once per process, before a
+    planning call's wall-clock cap starts."""
+    global _COMPILED
+    if not _COMPILED:
+        near_bodies(np.zeros((1, 8, 3, 4)), np.zeros(1, np.int64), np.zeros((1, 3)),
+                    np.zeros(1), np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)),
+                    np.zeros((1, 3)), np.zeros(1), np.zeros(1, np.int64),
+                    np.ones(1, np.int64), 0.0, np.zeros((1, 2), np.bool_))
+        _COMPILED = True
+
+
+class BoundedDistances:
+    """``contacts(q) -> (d, g)`` as ``panda.distance_model(query)`` gives them, and
+    :meth:`many` for several configurations at once (one compiled bound test for all)."""
+
+    def __init__(self, panda, query: float):
+        compile_kernel()
+        self.panda, self.query = panda, float(query)
+        c = panda.client
+        self.bodies = panda.obstacles()
+        self._base = np.ascontiguousarray(fast_check.base_link_frame(c, panda.body)[:3])
+        self._origins = np.ascontiguousarray(spheres.panda_chain().origins[:7, :3])
+        model = spheres.panda_spheres(fast_check.MARGIN,
+                                      fingers=float(panda.finger_positions[0]))
+        moving = model.links != -1  # the base link's points are no contacts
+        self._sph = (np.ascontiguousarray(model.frames[moving], dtype=np.int64),
+                     np.ascontiguousarray(model.centres[moving]),
+                     np.ascontiguousarray(model.radii[moving]))
+        boxes, others, always = [], [], []
+        for k, body in enumerate(self.bodies):
+            box = fast_check._box_of(c, body)
+            if box is not None:
+                boxes.append((k, box[0], box[1]))
+            elif fast_check._is_panda(c, body):
+                centres, radii, _ = fast_check._panda_obstacle(
+                    tuple(fast_check.arm_state(c, body)),
+                    tuple(fast_check.base_link_frame(c, body)[:3].ravel()))
+                others.append((k, centres, radii))
+            else:
+                always.append(k)
+        sizes = np.cumsum([0] + [len(o[2]) for o in others])
+        self._world = (np.array([b[1][:3, 3] for b in boxes]).reshape(-1, 3),
+                       np.ascontiguousarray(np.array([b[1][:3, :3] for b in boxes])
+                                            .reshape(-1, 3, 3)),
+                       np.array([b[2] for b in boxes], float).reshape(-1, 3),
+                       np.concatenate([np.zeros((0, 3))] + [o[1] for o in others]),
+                       np.concatenate([np.zeros(0)] + [o[2] for o in others]),
+                       sizes[:-1].astype(np.int64), sizes[1:].astype(np.int64))
+        #: column of the kernel's answer -> index into ``bodies``
+        self._columns = np.array([b[0] for b in boxes] + [o[0] for o in others],
+                                 dtype=np.int64)
+        self._always = np.array(always, dtype=np.int64)
+
+    def close_mask(self, states: np.ndarray) -> np.ndarray:
+        """(N, bodies): may the body be within the query distance (plus SAFETY) of the arm
+        (its base link left out) at the configuration?  False ones are certainly not."""
+        states = np.ascontiguousarray(np.atleast_2d(states), dtype=float)
+        frames = np.empty((len(states), 8, 3, 4))
+        collide.arm_frames(states, self._base, self._origins, frames)
+        near = np.empty((len(states), len(self._columns)), dtype=np.bool_)
+        near_bodies(frames, *self._sph, *self._world, self.query + SAFETY, near)
+        out = np.zeros((len(states), len(self.bodies)), dtype=bool)
+        out[:, self._columns] = near
+        out[:, self._always] = True
+        return out
+
+    def many(self, states: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """``[self(q) for q in states]``, the bodies sorted out for all rows at once."""
+        empty = (np.zeros(0), np.zeros((0, 7)))
+        out = []
+        for q, row in zip(states, self.close_mask(states), strict=True):
+            bodies = [self.bodies[k] for k in np.flatnonzero(row)]
+            out.append(self.panda.distances(q, bodies, self.query) if bodies else empty)
+        return out
+
+    def __call__(self, q) -> tuple[np.ndarray, np.ndarray]:
+        return self.many(np.asarray(q, float)[None])[0]
+
+
+def _panda_of(model):
+    """The Panda whose ``distances`` give ``model``'s distance model, or None."""
+    from pipeline.sim.mobile import UnladenArm
+    from pipeline.sim.panda import Panda
+
+    if type(model) is Panda:
+        return model
+    if type(model) is UnladenArm:  # its distance model is its arm's
+        return model.robot.arm
+    return None
+
+
+def bounded(model, query: float):
+    """``model.distance_model(query)`` with pybullet asked only about bodies that may be
+    within ``query`` (module docstring); the model's own distance model for robots this
+    module does not know."""
+    panda = _panda_of(model)
+    if panda is None:
+        return model.distance_model(query)
+    return BoundedDistances(panda, query)
