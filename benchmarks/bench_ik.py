@@ -1,78 +1,136 @@
-"""Damped numerical IK (pybullet, as Panda.ik runs it) against the analytic ``frankik``
-wheel, on the grasp_arm domain's pre-grasp poses within reach, one core.
+"""``domain.ik=damped`` (pybullet's damped IK, as Panda.ik runs it) against ``analytic``
+(frankik's closed-form solutions, pipeline/sim/analytic_ik.py) in the grasp_arm domain, one
+core, both measured in the same run.
 
-Prints per method: ms per pose and the share of poses with a solution within the domain's
-tolerances (5 mm, 0.05 rad) and the joint limits, checked with pybullet's own forward
-kinematics.  frankik solves for the flange; its hand offset (0.1034 m) is not the URDF's
-TCP (0.105 m), so the target handed to it is T_tcp · inv(flange → TCP of the URDF).
-Collision checks are left out (the same for both).
+1. Per pose, on the pre-grasp poses within reach: ms per pose and the share of poses with a
+   solution within the domain's tolerances (5 mm, 0.05 rad) and the joint limits, checked
+   with pybullet's own forward kinematics.  Collision checks are left out (the same for
+   both).  frankik solves for the flange; its hand offset (0.1034 m) is not the URDF's TCP
+   (0.105 m), so the target handed to it is T_tcp · inv(flange → TCP of the URDF)
+   (``analytic_ik.candidates`` does this).
+2. Per entry, on the same instances × all 162 constraints (π as a store computes it: IK,
+   collision checks, the planner): ms per entry with each setting (median and mean, and
+   their ratios damped / analytic), the number of feasible entries under each and the
+   entries feasible under one only.  The two settings alternate per instance (which goes
+   first too), so a noisy machine slows both alike.  The issue's rule: ``damped`` stays the
+   default unless ``analytic`` gives at least as many feasible entries on the same
+   instances.
 
-Run: python benchmarks/bench_ik.py [--instances 5]   (needs: pip install frankik)
+Run: python benchmarks/bench_ik.py [--instances 5] [--entry-instances 20]
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from collections import Counter
 
 import numpy as np
 
 from pipeline.domains import load_domain
+from pipeline.planning import Status
+from pipeline.sim import analytic_ik
 from pipeline.sim import panda as P
-from pipeline.sim import spheres as S
-from pipeline.sim.fast_check import base_link_frame
-from pipeline.sim.world import pose_matrix
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--instances", type=int, default=5)
-    args = ap.parse_args()
-    try:
-        import frankik
-    except ImportError:
-        raise SystemExit("bench_ik.py needs the frankik wheel: pip install frankik") from None
-    import pybullet as pb
+def reached(arm, q, pos, orn) -> bool:
+    """``q`` within the limits puts the TCP at the pose (pybullet's forward kinematics)."""
+    if q is None or np.any(q < P.LOWER) or np.any(q > P.UPPER):
+        return False
+    p, o = arm.tcp_pose(q)
+    return bool(np.linalg.norm(p - pos) <= P.IK_POS_TOL and P._angle(o, orn) <= P.IK_ANG_TOL)
 
+
+def per_pose(n: int) -> None:
     domain = load_domain("grasp_arm")
-    offsets = S.fixed_offsets()
-    flange_tcp = np.linalg.inv(offsets[7]) @ offsets[S.TCP_LINK]
     poses = []
-    for seed in range(args.instances):
+    for seed in range(n):
         inst = domain.check_instance(domain.sample_instance(seed))
         scene = domain.scene(inst)
         for g in domain.grasps:
             arm = scene.arms[g.arm]
             pos, orn = domain.pregrasp_pose(inst, g)
             if np.linalg.norm(pos - arm.shoulder) <= P.REACH:
-                R = np.asarray(pb.getMatrixFromQuaternion(orn)).reshape(3, 3)
-                poses.append((arm, pos, np.asarray(orn), pose_matrix(pos, R)))
-
-    def reached(arm, q, pos, orn) -> bool:
-        if q is None or np.any(q < P.LOWER) or np.any(q > P.UPPER):
-            return False
-        p, o = arm.tcp_pose(q)
-        return bool(np.linalg.norm(p - pos) <= 0.005 and P._angle(o, orn) <= 0.05)
-
+                poses.append((arm, pos, np.asarray(orn)))
+    analytic_ik.candidates(*poses[0])  # warm-up: frankik's import, the URDF's offsets
     rows = {}
-    for name in ("pybullet (4 restarts)", "frankik ik_sample_q7"):
+    for name in ("damped (4 restarts)", "analytic (all solutions)"):
         ok, t = 0, 0.0
-        for k, (arm, pos, orn, T) in enumerate(poses):
+        for k, (arm, pos, orn) in enumerate(poses):
             t0 = time.perf_counter()
-            if name.startswith("pybullet"):  # Panda.ik without the collision check
+            if name.startswith("damped"):  # Panda.ik without the collision check
                 q, _, _ = arm.ik(pos, orn, P.ik_starts(k, 4), collides=lambda q: False)
             else:
-                local = np.linalg.inv(base_link_frame(arm.client, arm.body)) @ T
-                sols = frankik.ik_sample_q7(local @ np.linalg.inv(flange_tcp), P.HOME,
-                                            sample_size=60, sample_interval=330, full_ik=True)
-                q = np.asarray(sols[0]).ravel() if len(sols) else None
+                sols = analytic_ik.candidates(arm, pos, orn)
+                q = sols[0] if len(sols) else None
             t += time.perf_counter() - t0
             ok += reached(arm, q, pos, orn)
             arm.set(P.HOME)
         rows[name] = (t / len(poses) * 1e3, ok / len(poses))
+    domain.close()
     print(f"IK on {len(poses)} grasp_arm pre-grasp poses within reach, one core")
     for name, (ms, share) in rows.items():
-        print(f"  {name:<24} {ms:7.3f} ms per pose, solved {share:.1%}")
+        print(f"  {name:<26} {ms:7.3f} ms per pose, solved {share:.1%}")
+
+
+def per_entry(n: int) -> None:
+    methods = ("damped", "analytic")
+    domains = {m: load_domain("grasp_arm", ik=m) for m in methods}
+    instances = [domains["damped"].check_instance(domains["damped"].sample_instance(i))
+                 for i in range(n)]  # checked once per instance, as a worker does
+    for d in domains.values():  # warm-up: scene, kernels
+        d.plan(instances[0], 0, seed=0)
+    times = {m: np.zeros((n, 162)) for m in methods}
+    feasible = {m: np.zeros((n, 162), dtype=bool) for m in methods}
+    status = {m: np.zeros((n, 162), dtype=int) for m in methods}
+    for i, inst in enumerate(instances):
+        for m in methods if i % 2 == 0 else methods[::-1]:
+            for j in range(162):
+                res = domains[m].plan(inst, j, seed=j)
+                times[m][i, j], feasible[m][i, j] = res.time, res.feasible
+                status[m][i, j] = int(res.status)
+    for d in domains.values():
+        d.close()
+    entries = n * 162
+    print(f"\ngrasp_arm, {n} instances x 162 constraints = {entries} entries per setting, "
+          "one core, the two settings alternating per instance")
+    for m in methods:
+        mix = ", ".join(f"{Status(k).name.lower()} {v} ({times[m][status[m] == k].mean() * 1e3:.2f}"
+                        " ms)" for k, v in Counter(status[m].ravel().tolist()).most_common())
+        print(f"  domain.ik={m:<9} median {np.median(times[m]) * 1e3:6.3f} ms per entry, mean "
+              f"{times[m].mean() * 1e3:6.3f} ms; feasible {feasible[m].sum()} of {entries}")
+        print(f"    outcomes (mean ms each): {mix}")
+    med = np.median(times["damped"]) / np.median(times["analytic"])
+    mean = times["damped"].mean() / times["analytic"].mean()
+    print(f"  damped / analytic: {med:.2f}x per entry (medians), {mean:.2f}x (means) "
+          "(target >= 2x; grasp_arm <= 1 ms per entry with analytic)")
+    same = status["damped"] == status["analytic"]
+    print(f"  on the {same.sum()} entries with the same outcome under both: mean "
+          f"{times['damped'][same].mean() * 1e3:.3f} ms damped, "
+          f"{times['analytic'][same].mean() * 1e3:.3f} ms analytic "
+          f"({times['damped'][same].mean() / times['analytic'][same].mean():.2f}x); the "
+          "others plan paths under one setting only")
+    only_d = int((feasible["damped"] & ~feasible["analytic"]).sum())
+    only_a = int((feasible["analytic"] & ~feasible["damped"]).sum())
+    print(f"  feasible under damped only: {only_d}; under analytic only: {only_a}")
+    more = feasible["analytic"].sum() >= feasible["damped"].sum()
+    print(f"  analytic gives {'at least as many' if more else 'fewer'} feasible entries on "
+          "these instances (the rule for making it the default)")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--instances", type=int, default=5, help="instances of the per-pose part")
+    ap.add_argument("--entry-instances", type=int, default=20,
+                    help="instances of the per-entry part (x 162 entries); 0 skips it")
+    args = ap.parse_args()
+    try:
+        import frankik  # noqa: F401
+    except ImportError:
+        raise SystemExit("bench_ik.py needs the frankik package: pip install frankik") from None
+    per_pose(args.instances)
+    if args.entry_instances:
+        per_entry(args.entry_instances)
 
 
 if __name__ == "__main__":

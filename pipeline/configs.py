@@ -225,7 +225,41 @@ def identity(cfg) -> dict:
         out[key] = node
     # the collision checker changes the cost of D, never its contents (pipeline.sim.fast_check)
     out["planner"] = {k: v for k, v in out["planner"].items() if k != "collision"}
+    for key, old in LATER_KEYS.items():
+        _drop_if(out, key, old)
     return out
+
+
+#: Keys that change D, added to the schemas after stores had been made, each with the value
+#: that reproduces what every store made before it computed.  ``identity`` leaves such a
+#: key out while it has that value, so a store made before the key existed (whose identity
+#: never had it) still matches and resumes; any other value is recorded, and a store made
+#: with it refuses to continue under the old value (and the reverse).  A key added from now
+#: on whose default keeps D as it was belongs here, with that default.
+LATER_KEYS = {
+    "domain.ik": "damped",  # pybullet's damped IK (pipeline.domains.ik.solve_ik)
+}
+
+
+def _drop_if(ident: dict, key: str, value) -> None:
+    """Remove ``key`` (dotted: an IDENTITY_KEYS entry, then the path inside it) from
+    ``ident`` when it holds ``value``."""
+    for top in IDENTITY_KEYS:
+        if key == top or key.startswith(top + "."):
+            node, path = ident.get(top), key[len(top) + 1:].split(".") if key != top else []
+            break
+    else:
+        raise ValueError(f"LATER_KEYS: {key} is not inside any of IDENTITY_KEYS")
+    if not path:
+        if node == value:
+            del ident[key]
+        return
+    for part in path[:-1]:
+        if not isinstance(node, dict):
+            return
+        node = node.get(part)
+    if isinstance(node, dict) and path[-1] in node and node[path[-1]] == value:
+        del node[path[-1]]
 
 
 def config_hash(ident: dict) -> str:

@@ -198,7 +198,7 @@ class GraspArmDomain(Domain):
 
     def _plan_arm(self, inst: GraspArmInstance, g: Grasp, arm: P.Panda, seed: int) -> PlanResult:
         pos, orn = self.pregrasp_pose(inst, g)
-        ik = solve_ik(arm, pos, orn, [seed, 7], self.config.ik_restarts)
+        ik = solve_ik(arm, pos, orn, [seed, 7], self.config.ik_restarts, self.config.ik)
         if not ik.found:
             return PlanResult(ik.status, checks=ik.checks, step="ik")
         result = self.motion.plan(arm, P.HOME, ik.q, seed=seed)

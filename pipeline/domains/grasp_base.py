@@ -161,7 +161,7 @@ class GraspBaseDomain(Domain):
     def _grasp_ik(self, robot, inst, theta: BaseGrasp, seed: int):
         """The IK step for θ's pre-grasp, the base already parked at θ's pose."""
         pos, orn = pregrasp_pose(inst.target, theta.grasp, self.config.pregrasp_offset)
-        return solve_ik(robot, pos, orn, [seed, 7], self.config.ik_restarts)
+        return solve_ik(robot, pos, orn, [seed, 7], self.config.ik_restarts, self.config.ik)
 
     def _arm_path(self, robot, goal, seed: int) -> PlanResult:
         result = self.motion.plan(UnladenArm(robot), P.HOME, goal, seed=seed)

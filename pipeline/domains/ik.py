@@ -1,5 +1,6 @@
-"""The IK step every arm domain runs: reach check → IK with seeded restarts → the goal
-configuration, or the status that says why there is none."""
+"""The IK step every arm domain runs: reach check → IK (``domain.ik``: damped with seeded
+restarts, or analytic) → the goal configuration, or the status that says why there is
+none."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.domains.schemas import IK_METHODS
 from pipeline.planning import Status
 from pipeline.sim.panda import REACH, ik_starts
 
@@ -22,11 +24,20 @@ class IKOutcome:
         return self.q is not None
 
 
-def solve_ik(arm, position, orientation, rng_seed, restarts: int) -> IKOutcome:
-    """A collision-free configuration of ``arm`` (anything with ``shoulder`` and ``ik``:
-    a Panda, a MobilePanda's) with its TCP at ``position``/``orientation``; the random
-    restarts draw from ``numpy.random.default_rng(rng_seed)``, made only when a restart
-    needs it (:func:`pipeline.sim.panda.ik_starts`).
+#: the values of ``domain.ik``
+METHODS = IK_METHODS
+
+
+def solve_ik(arm, position, orientation, rng_seed, restarts: int,
+             method: str = "damped") -> IKOutcome:
+    """A collision-free configuration of ``arm`` (anything with ``shoulder``, ``ik`` and
+    ``analytic_ik``: a Panda, a MobilePanda) with its TCP at ``position``/``orientation``.
+
+    ``method="damped"``: pybullet's damped IK from ``restarts`` starts; the random ones
+    draw from ``numpy.random.default_rng(rng_seed)``, made only when a restart needs it
+    (:func:`pipeline.sim.panda.ik_starts`).  ``method="analytic"``: frankik's closed-form
+    solutions, at most ``restarts`` of them collision-checked, chosen from the pose alone
+    (:mod:`pipeline.sim.analytic_ik`; ``rng_seed`` is not used).
 
     Beyond REACH of the shoulder no solution can exist: NO_IK without a single IK call.
     Otherwise NO_IK when no restart reached the pose, GOAL_IN_COLLISION when every one that
@@ -34,7 +45,12 @@ def solve_ik(arm, position, orientation, rng_seed, restarts: int) -> IKOutcome:
     """
     if np.linalg.norm(np.asarray(position) - arm.shoulder) > REACH:
         return IKOutcome(None, 0, Status.NO_IK)
-    q, checks, reached = arm.ik(position, orientation, ik_starts(rng_seed, restarts))
+    if method == "damped":
+        q, checks, reached = arm.ik(position, orientation, ik_starts(rng_seed, restarts))
+    elif method == "analytic":
+        q, checks, reached = arm.analytic_ik(position, orientation, restarts)
+    else:
+        raise ValueError(f"IK method must be one of {', '.join(METHODS)}, got {method!r}")
     if q is not None:
         return IKOutcome(q, checks, Status.OK)
     return IKOutcome(None, checks, Status.GOAL_IN_COLLISION if reached else Status.NO_IK)

@@ -50,13 +50,15 @@ class GraspArmConfig:
     obstacle_height: list[float] = field(default_factory=lambda: [0.05, 0.20])
     target_size: list[float] = field(default_factory=lambda: [0.04, 0.04, 0.12])
     pregrasp_offset: float = 0.10
-    ik_restarts: int = 4
+    ik_restarts: int = 4  # damped: IK runs; analytic: solutions collision-checked; at most
+    ik: str = "damped"  # or "analytic": frankik's closed-form IK (pipeline.sim.analytic_ik)
 
     def __post_init__(self):
         _obstacle_range(self.obstacles_min, self.obstacles_max)
         _sizes(self)
         if self.ik_restarts < 1 or self.pregrasp_offset < 0:
             raise ValueError("domain: need ik_restarts >= 1 and pregrasp_offset >= 0")
+        _ik(self.ik)
 
 
 @dataclass
@@ -70,7 +72,8 @@ class GraspBaseConfig:
     target_size: list[float] = field(default_factory=lambda: [0.04, 0.04, 0.12])
     reach_radius: float = 0.855  # the Panda's reach: RAWPLANNER's base-pose disc, metres
     pregrasp_offset: float = 0.10
-    ik_restarts: int = 10
+    ik_restarts: int = 10  # damped: IK runs; analytic: solutions collision-checked; at most
+    ik: str = "damped"  # or "analytic": frankik's closed-form IK (pipeline.sim.analytic_ik)
     raw_base_samples: int = 40  # collision-free base poses RAWPLANNER tries before giving up
 
     def __post_init__(self):
@@ -91,7 +94,8 @@ class PickPlaceConfig:
     door_width: float = 0.9
     reach_radius: float = 0.855  # the Panda's reach; RAWPLANNER's disc for k_b around the placement
     pregrasp_offset: float = 0.10
-    ik_restarts: int = 10
+    ik_restarts: int = 10  # damped: IK runs; analytic: solutions collision-checked; at most
+    ik: str = "damped"  # or "analytic": frankik's closed-form IK (pipeline.sim.analytic_ik)
     psi_scale: float = 0.5  # metres per radian of base rotation (path metric)
     arm_weight: float = 0.1  # metres per radian of arm motion (score)
     base_max_checks: int = 4000  # collision checks per base path, both legs together
@@ -119,6 +123,10 @@ class PickPlaceConfig:
             raise ValueError("domain.raw_*: need at least 1 of each")
 
 
+#: the values of ``domain.ik`` in the arm domains (pipeline.domains.ik.solve_ik): pybullet's
+#: damped IK from seeded restarts, or frankik's closed-form solutions
+IK_METHODS = ("damped", "analytic")
+
 #: pick_place's step orders (the keys of pipeline.domains.pick_place.plan_steps.ORDERS) and
 #: its widest door (the wall between the rooms less the platform's margins), metres
 PICK_PLACE_ORDERS = ("paper", "cheap_first")
@@ -145,6 +153,19 @@ def _mobile(c) -> None:
     if c.obstacles < 0 or c.ik_restarts < 1 or c.pregrasp_offset < 0:
         raise ValueError("domain: need obstacles >= 0, ik_restarts >= 1 and "
                          "pregrasp_offset >= 0")
+    _ik(c.ik)
+
+
+def _ik(method: str) -> None:
+    """``domain.ik``: one of IK_METHODS; ``analytic`` needs the frankik package."""
+    if method not in IK_METHODS:
+        raise ValueError(f"domain.ik must be one of {', '.join(IK_METHODS)}, got {method!r}")
+    if method == "analytic":
+        import importlib.util
+
+        if importlib.util.find_spec("frankik") is None:
+            raise ValueError("domain.ik=analytic needs the frankik package (pip install "
+                             "frankik)")
 
 
 #: domain name -> schema (the names of pipeline.domains.DOMAINS)

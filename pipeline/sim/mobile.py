@@ -179,6 +179,10 @@ class MobilePanda:
         """Panda.ik with this robot's check (platform and held object included)."""
         return self.arm.ik(position, orientation, starts, collides=self.arm_collides)
 
+    def analytic_ik(self, position, orientation, tries: int):
+        """Panda.analytic_ik with this robot's check (platform and held object included)."""
+        return self.arm.analytic_ik(position, orientation, tries, collides=self.arm_collides)
+
     def held_pose(self) -> np.ndarray:
         return _pose_of(self.held, self.client)
 

@@ -25,6 +25,8 @@ LOWER = np.array([-2.9671, -1.8326, -2.9671, -3.1416, -2.9671, -0.0873, -2.9671]
 UPPER = np.array([2.9671, 1.8326, 2.9671, 0.0, 2.9671, 3.8223, 2.9671])
 REACH = 0.855  # from the shoulder (joint 2) to the TCP at full stretch, metres
 SHOULDER_HEIGHT = 0.333
+#: IK's tolerances: a solution's TCP within these of the pose asked for (metres, radians)
+IK_POS_TOL, IK_ANG_TOL = 0.005, 0.05
 
 
 class Panda(Robot):
@@ -136,8 +138,8 @@ class Panda(Robot):
                                 physicsClientId=self.client)
         return np.array(state[4]), np.array(state[5])
 
-    def ik(self, position, orientation, starts, pos_tol: float = 0.005,
-           ang_tol: float = 0.05, collides=None) -> tuple[np.ndarray | None, int, bool]:
+    def ik(self, position, orientation, starts, pos_tol: float = IK_POS_TOL,
+           ang_tol: float = IK_ANG_TOL, collides=None) -> tuple[np.ndarray | None, int, bool]:
         """(a collision-free joint solution reaching the TCP pose or None, the collision
         checks used, whether any solution reached the pose).  One damped IK run from each
         configuration ``starts`` yields (an iterable, drawn from only as far as needed),
@@ -162,6 +164,15 @@ class Panda(Robot):
             if not collides(q):
                 return q, checks, True
         return None, checks, checks > 0
+
+    def analytic_ik(self, position, orientation, tries: int,
+                    collides=None) -> tuple[np.ndarray | None, int, bool]:
+        """What :meth:`ik` returns, from frankik's closed-form solutions instead of damped
+        IK: at most ``tries`` of them collision-checked (:mod:`pipeline.sim.analytic_ik`)."""
+        from pipeline.sim import analytic_ik
+
+        return analytic_ik.solve(self, position, orientation, tries,
+                                 collides or self.collides_at)
 
 
 def ik_starts(rng_seed, restarts: int):

@@ -164,7 +164,7 @@ class PickPlaceDomain(Domain):
             # the rod's frame is the base's (rod along the heading), so the TCP turns by g's
             world = base_transform(PARK_POSE) @ pose_matrix(CARRY_TCP, g.rod_tcp(1.0)[:3, :3])
             ik = solve_ik(robot, world[:3, 3], quaternion(world[:3, :3]),
-                          [key[0], 11], self.config.ik_restarts)
+                          [key[0], 11], self.config.ik_restarts, self.config.ik)
             self._carry[key] = (ik.q, ik.status)
             scene.reset(inst)
         return self._carry[key]
@@ -175,7 +175,7 @@ class PickPlaceDomain(Domain):
         target = rod_pose(inst.rod_length, theta.placement) @ theta.grasp.rod_tcp(
             inst.rod_length)
         return solve_ik(self.robot, target[:3, 3], quaternion(target[:3, :3]),
-                        [seed, 13], self.config.ik_restarts)
+                        [seed, 13], self.config.ik_restarts, self.config.ik)
 
     def pick_ik(self, inst, g: RodGrasp, seed: int) -> IKOutcome:
         """IK at the start for g's pre-grasp of the rod on the start table."""
@@ -183,7 +183,7 @@ class PickPlaceDomain(Domain):
             inst.rod_length)
         pre = grasp[:3, 3] - grasp[:3, 2] * self.config.pregrasp_offset
         return solve_ik(self.robot, pre, quaternion(grasp[:3, :3]),
-                        [seed, 17], self.config.ik_restarts)
+                        [seed, 17], self.config.ik_restarts, self.config.ik)
 
     def drive(self, inst, g: RodGrasp, carry, poses, seed: int) -> PlanResult:
         """Base path through ``poses`` (the first is the start), arm in carry, rod held."""
