@@ -37,12 +37,13 @@ SAFETY = 0.01
 
 
 @njit(cache=True)
-def near_bodies(frames, sph_frame, sph_c, sph_r, box_c, box_R, box_h, obs_c, obs_r, obs_lo,
-                obs_hi, reach, out):  # pragma: no cover (compiled)
+def near_bodies(frames, sph_frame, sph_c, sph_r, box_c, box_R, box_h, obs_c, obs_r, grp_lo,
+                grp_hi, grp_c, grp_r, body_lo, body_hi, reach, out):  # pragma: no cover
     """out[n, b] = may a sphere (sph_c[s] in frame sph_frame[s] of frames[n], radius
     sph_r[s]) come within ``reach`` of box b (centre box_c[b], axes the columns of box_R[b],
-    half extents box_h[b]), for b < len(box_c); of sphere group p (obs_c[obs_lo[p]:
-    obs_hi[p]], radii obs_r) at column len(box_c) + p."""
+    half extents box_h[b]), for b < len(box_c); of sphere body p at column len(box_c) + p:
+    the groups body_lo[p]:body_hi[p] (group g: spheres obs_c[grp_lo[g]:grp_hi[g]], radii
+    obs_r, inside the bounding sphere grp_c[g], grp_r[g])."""
     n_box = box_c.shape[0]
     centres = np.empty((sph_c.shape[0], 3))
     for n in range(frames.shape[0]):
@@ -66,16 +67,25 @@ def near_bodies(frames, sph_frame, sph_c, sph_r, box_c, box_R, box_h, obs_c, obs
                 if gap <= limit * limit:
                     out[n, b] = True
                     break
-        for p in range(obs_lo.shape[0]):
+        for p in range(body_lo.shape[0]):
             hit = False
             for s in range(sph_c.shape[0]):
-                for m in range(obs_lo[p], obs_hi[p]):
-                    dx = centres[s, 0] - obs_c[m, 0]
-                    dy = centres[s, 1] - obs_c[m, 1]
-                    dz = centres[s, 2] - obs_c[m, 2]
-                    limit = reach + sph_r[s] + obs_r[m]
-                    if dx * dx + dy * dy + dz * dz <= limit * limit:
-                        hit = True
+                for g in range(body_lo[p], body_hi[p]):
+                    dx = centres[s, 0] - grp_c[g, 0]
+                    dy = centres[s, 1] - grp_c[g, 1]
+                    dz = centres[s, 2] - grp_c[g, 2]
+                    limit = reach + sph_r[s] + grp_r[g]
+                    if dx * dx + dy * dy + dz * dz > limit * limit:
+                        continue  # the whole group is out of reach
+                    for m in range(grp_lo[g], grp_hi[g]):
+                        dx = centres[s, 0] - obs_c[m, 0]
+                        dy = centres[s, 1] - obs_c[m, 1]
+                        dz = centres[s, 2] - obs_c[m, 2]
+                        limit = reach + sph_r[s] + obs_r[m]
+                        if dx * dx + dy * dy + dz * dz <= limit * limit:
+                            hit = True
+                            break
+                    if hit:
                         break
                 if hit:
                     break
@@ -93,6 +103,7 @@ def compile_kernel() -> None:
         near_bodies(np.zeros((1, 8, 3, 4)), np.zeros(1, np.int64), np.zeros((1, 3)),
                     np.zeros(1), np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)),
                     np.zeros((1, 3)), np.zeros(1), np.zeros(1, np.int64),
+                    np.ones(1, np.int64), np.zeros((1, 3)), np.ones(1), np.zeros(1, np.int64),
                     np.ones(1, np.int64), 0.0, np.zeros((1, 2), np.bool_))
         _COMPILED = True
 
@@ -120,20 +131,27 @@ class BoundedDistances:
             if box is not None:
                 boxes.append((k, box[0], box[1]))
             elif fast_check._is_panda(c, body):
-                centres, radii, _ = fast_check._panda_obstacle(
+                others.append((k, *fast_check._panda_obstacle(
                     tuple(fast_check.arm_state(c, body)),
-                    tuple(fast_check.base_link_frame(c, body)[:3].ravel()))
-                others.append((k, centres, radii))
+                    tuple(fast_check.base_link_frame(c, body)[:3].ravel()))))
             else:
                 always.append(k)
-        sizes = np.cumsum([0] + [len(o[2]) for o in others])
+        # other Pandas: their spheres, in groups (one per link) with bounding spheres
+        first = np.cumsum([0] + [len(o[2]) for o in others])
+        parts = [(lo + f, hi + f, gc, gr) for o, f in zip(others, first[:-1], strict=True)
+                 for lo, hi, gc, gr in o[3]]
+        groups = np.cumsum([0] + [len(o[3]) for o in others])
         self._world = (np.array([b[1][:3, 3] for b in boxes]).reshape(-1, 3),
                        np.ascontiguousarray(np.array([b[1][:3, :3] for b in boxes])
                                             .reshape(-1, 3, 3)),
                        np.array([b[2] for b in boxes], float).reshape(-1, 3),
                        np.concatenate([np.zeros((0, 3))] + [o[1] for o in others]),
                        np.concatenate([np.zeros(0)] + [o[2] for o in others]),
-                       sizes[:-1].astype(np.int64), sizes[1:].astype(np.int64))
+                       np.array([g[0] for g in parts], dtype=np.int64),
+                       np.array([g[1] for g in parts], dtype=np.int64),
+                       np.array([g[2] for g in parts], float).reshape(-1, 3),
+                       np.array([g[3] for g in parts], float),
+                       groups[:-1].astype(np.int64), groups[1:].astype(np.int64))
         #: column of the kernel's answer -> index into ``bodies``
         self._columns = np.array([b[0] for b in boxes] + [o[0] for o in others],
                                  dtype=np.int64)
@@ -155,11 +173,11 @@ class BoundedDistances:
     def many(self, states: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
         """``[self(q) for q in states]``, the bodies sorted out for all rows at once."""
         empty = (np.zeros(0), np.zeros((0, 7)))
-        out = []
-        for q, row in zip(states, self.close_mask(states), strict=True):
-            bodies = [self.bodies[k] for k in np.flatnonzero(row)]
-            out.append(self.panda.distances(q, bodies, self.query) if bodies else empty)
-        return out
+        mask = self.close_mask(states)
+        bodies = np.array(self.bodies, dtype=np.int64)
+        return [self.panda.distances(q, bodies[row].tolist(), self.query) if any_near
+                else empty for q, row, any_near in zip(states, mask, mask.any(axis=1),
+                                                       strict=True)]
 
     def __call__(self, q) -> tuple[np.ndarray, np.ndarray]:
         return self.many(np.asarray(q, float)[None])[0]
