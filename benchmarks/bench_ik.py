@@ -104,6 +104,12 @@ def per_entry(n: int) -> None:
     mean = times["damped"].mean() / times["analytic"].mean()
     print(f"  damped / analytic: {med:.2f}x per entry (medians), {mean:.2f}x (means) "
           "(target >= 2x; grasp_arm <= 1 ms per entry with analytic)")
+    at_ik = {m: np.isin(status[m], [int(Status.NO_IK), int(Status.GOAL_IN_COLLISION)])
+             for m in methods}
+    ik_ms = {m: times[m][at_ik[m]].mean() * 1e3 for m in methods}
+    print(f"  entries that end at IK (no_ik, goal_in_collision): mean {ik_ms['damped']:.3f} ms "
+          f"damped ({at_ik['damped'].sum()}), {ik_ms['analytic']:.3f} ms analytic "
+          f"({at_ik['analytic'].sum()}): {ik_ms['damped'] / ik_ms['analytic']:.2f}x")
     same = status["damped"] == status["analytic"]
     print(f"  on the {same.sum()} entries with the same outcome under both: mean "
           f"{times['damped'][same].mean() * 1e3:.3f} ms damped, "
