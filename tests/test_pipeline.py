@@ -3,6 +3,7 @@ integrity and refusals.  The reference store is computed once per module."""
 
 import json
 import os
+import shutil
 import signal
 import time
 
@@ -15,11 +16,12 @@ from tests import pipeline_runs as pr
 
 
 @pytest.fixture(scope="module")
-def reference(tmp_path_factory):
-    """An uninterrupted ``stage=all`` run with two workers."""
+def reference(made_run, tmp_path_factory):
+    """An uninterrupted ``stage=all`` run with two workers: the session's (``made_run``),
+    its store copied, since tests here run the pipeline on it again."""
+    made, _, res = made_run
     store = tmp_path_factory.mktemp("ref") / "ref.zarr"
-    res = pr.run(store, "stage=all")
-    assert res.returncode == 0, res.stderr + res.stdout
+    shutil.copytree(made, store)
     return store, res, pr.matrix(store)
 
 
@@ -158,8 +160,6 @@ def test_a_killed_worker_is_replaced_and_its_block_retried(reference, tmp_path):
 def test_corrupted_chunk_is_reported_and_recomputed(reference, tmp_path):
     store, _, D = reference
     copy = tmp_path / "copy.zarr"
-    import shutil
-
     shutil.copytree(store, copy)
     chunk = copy / "scores" / "feasible" / "c" / "1" / "2"
     data = bytearray(chunk.read_bytes())

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import functools
 import json
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 
@@ -46,8 +48,12 @@ def test_stored_entries_and_raw_solutions_replay_within_the_contract(k):
 def forced(tmp_path_factory):
     """Every forced code path's replay, from child processes: name -> (env, result)."""
     out = tmp_path_factory.mktemp("forced")
-    return {name: (env, replay.replay_in_child(env, out / f"{name}.json"))
-            for name, env in replay.code_paths().items()}
+    paths = replay.code_paths()
+    # the children are independent processes: as many at once as there are cores
+    with ThreadPoolExecutor(max_workers=max(1, os.cpu_count() or 1)) as pool:
+        results = {name: pool.submit(replay.replay_in_child, env, out / f"{name}.json")
+                   for name, env in paths.items()}
+        return {name: (paths[name], result.result()) for name, result in results.items()}
 
 
 def test_forced_code_paths_really_change_the_environment(forced):
