@@ -29,8 +29,8 @@ TrajOpt's ratio to RRT-Connect (target <= 3), and how many entries of ``new`` ag
 ``exact`` and ``base`` bit for bit: status, feasibility, failed step, checks, path length,
 score and the path's bytes.
 
-Run: python benchmarks/bench_trajopt.py [--arm-instances 6] [--raw 30] [--base-instances 10]
-         [--base-constraints 20] [--repeats 3] [--baseline-rev 4e14f96] [--only grasp_arm]
+Run: python benchmarks/bench_trajopt.py [--arm-instances 6] [--raw 40] [--base-instances 20]
+         [--base-constraints 30] [--repeats 3] [--baseline-rev 4e14f96] [--only grasp_arm]
          [--profile]
 """
 
@@ -199,9 +199,9 @@ def same(a: Path, b: Path) -> np.ndarray:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--arm-instances", type=int, default=6)
-    ap.add_argument("--raw", type=int, default=30, help="RAWPLANNER instances for Θ̂ (most)")
-    ap.add_argument("--base-instances", type=int, default=10)
-    ap.add_argument("--base-constraints", type=int, default=20)
+    ap.add_argument("--raw", type=int, default=40, help="RAWPLANNER instances for Θ̂ (most)")
+    ap.add_argument("--base-instances", type=int, default=20)
+    ap.add_argument("--base-constraints", type=int, default=30)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=2017)
     ap.add_argument("--baseline-rev", default=BASELINE_REV)

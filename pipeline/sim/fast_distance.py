@@ -6,18 +6,23 @@ configuration, although at a given configuration only one or two bodies are with
 query distance: in grasp_arm and grasp_base that is 17 to 25 ``getClosestPoints`` calls per
 configuration, most of a TrajOpt call's time.
 
-:func:`bounded` gives the same model with a cheap test in front.  The arm's conservative
-sphere model (:func:`pipeline.sim.spheres.panda_spheres`: every point of every link's
-collision hull lies in one of its link's spheres, whose radii carry ``fast_check.MARGIN``
-for pybullet's collision margin) bounds the distance from below: from a sphere to a box
-body it is the distance from the centre to the box less the radius; to another Panda it is
-the distance between the two Pandas' spheres.  A body whose bound exceeds the query
-distance by ``SAFETY`` has no point closer than the query (pybullet reports none for it),
-so only the other bodies are asked, in their original order, by the Panda's own
-``distances``: the distances and gradients are the same, bit for bit, as those of the full
-model (tests/test_trajopt.py compares them).  A configuration with no body in reach is not
-even set in pybullet.  Bodies that are neither a box nor a Panda are always asked.  The
-arm's base link is left out of the bound, as the full model leaves out its points.
+:func:`bounded` gives the same model with a cheap test in front (compiled,
+:func:`near_bodies`), which bounds the distance of each of the arm's moving links from each
+body from below.  The arm's conservative sphere model (:func:`pipeline.sim.spheres.
+panda_spheres`: every point of a link's collision hull lies in one of its spheres, whose
+radii carry ``fast_check.MARGIN`` for pybullet's collision margin) gives one bound: from a
+sphere to a box body, the distance from the centre to the box less the radius; to another
+Panda, the distance between the two Pandas' spheres.  For a box, the link's hull
+(:func:`pipeline.sim.spheres.panda_hulls`, the vertices pybullet collides) gives another:
+how far the hull lies beyond one of the box's faces, a separating direction of two convex
+sets (the spheres of the first link above the arm's mount are loose: it is 9 cm above a
+mobile robot's platform, its spheres come within 6 cm).  A body whose bound exceeds the query
+distance by ``SAFETY`` for every link has no point closer than the query (pybullet reports
+none for it), so only the other bodies are asked, in their original order, by the Panda's
+own ``distances``: the distances and gradients are the same, bit for bit, as those of the
+full model (tests/test_trajopt.py compares them).  A configuration with no body in reach
+is not even set in pybullet.  Bodies that are neither a box nor a Panda are always asked.
+The arm's base link is left out of the bound, as the full model leaves out its points.
 
 The world is read when :func:`bounded` is called and assumed fixed while the model is used
 (one model per planning call, made once the scene is set, as ``fast_check.certified``).
@@ -31,42 +36,83 @@ from numba import njit
 from pipeline.sim import collide, fast_check, spheres
 
 #: how far beyond the query distance (metres) a body's lower bound must be for the body to
-#: be left out: far above pybullet's collision margin (1 mm) and the kinematics' rounding
-#: (1e-7 m), both already covered by the spheres' own margin
+#: be left out: far above pybullet's collision margin (its distances are up to 0.9 mm below
+#: the hulls'; the spheres carry it already, the hulls' separations do not) and the
+#: kinematics' rounding (1e-7 m)
 SAFETY = 0.01
 
 
 @njit(cache=True)
-def near_bodies(frames, sph_frame, sph_c, sph_r, box_c, box_R, box_h, obs_c, obs_r, grp_lo,
-                grp_hi, grp_c, grp_r, body_lo, body_hi, reach, out):  # pragma: no cover
-    """out[n, b] = may a sphere (sph_c[s] in frame sph_frame[s] of frames[n], radius
-    sph_r[s]) come within ``reach`` of box b (centre box_c[b], axes the columns of box_R[b],
-    half extents box_h[b]), for b < len(box_c); of sphere body p at column len(box_c) + p:
+def near_bodies(frames, link_frame, link_lo, link_hi, sph_c, sph_r, hull_lo, hull_hi, hull_v,
+                box_c, box_R, box_h, obs_c, obs_r, grp_lo, grp_hi, grp_c, grp_r, body_lo,
+                body_hi, reach, out):  # pragma: no cover (compiled)
+    """out[n, b]: may the robot at ``frames[n]`` come within ``reach`` of body b?
+
+    The robot is links l riding on frames link_frame[l], each covered by the spheres
+    sph_c[link_lo[l]:link_hi[l]] (in that frame; radii sph_r) and, where hull_lo[l] <
+    hull_hi[l], the convex hull of the vertices hull_v[hull_lo[l]:hull_hi[l]] (in that
+    frame).  Boxes b < len(box_c) (centre box_c[b], axes the columns of box_R[b], half
+    extents box_h[b]): a link is out of reach when its spheres are, or when its hull lies
+    more than ``reach`` beyond one of the box's faces (a separating direction bounds the
+    distance of two convex sets from below).  Sphere bodies p at column len(box_c) + p:
     the groups body_lo[p]:body_hi[p] (group g: spheres obs_c[grp_lo[g]:grp_hi[g]], radii
     obs_r, inside the bounding sphere grp_c[g], grp_r[g])."""
     n_box = box_c.shape[0]
+    n_link = link_lo.shape[0]
     centres = np.empty((sph_c.shape[0], 3))
+    hull = np.empty((hull_v.shape[0], 3))
+    placed = np.zeros(n_link, dtype=np.bool_)
     for n in range(frames.shape[0]):
-        for s in range(sph_c.shape[0]):
-            F = frames[n, sph_frame[s]]
-            for i in range(3):
-                centres[s, i] = (F[i, 0] * sph_c[s, 0] + F[i, 1] * sph_c[s, 1]
-                                 + F[i, 2] * sph_c[s, 2] + F[i, 3])
+        for s_link in range(n_link):
+            F = frames[n, link_frame[s_link]]
+            placed[s_link] = False
+            for s in range(link_lo[s_link], link_hi[s_link]):
+                for i in range(3):
+                    centres[s, i] = (F[i, 0] * sph_c[s, 0] + F[i, 1] * sph_c[s, 1]
+                                     + F[i, 2] * sph_c[s, 2] + F[i, 3])
         for b in range(n_box):
             out[n, b] = False
-            for s in range(sph_c.shape[0]):
-                gap = 0.0
-                for j in range(3):
-                    local = 0.0
-                    for i in range(3):
-                        local += (centres[s, i] - box_c[b, i]) * box_R[b, i, j]
-                    over = abs(local) - box_h[b, j]
-                    if over > 0.0:
-                        gap += over * over
-                limit = reach + sph_r[s]
-                if gap <= limit * limit:
-                    out[n, b] = True
-                    break
+            for lk in range(n_link):
+                touches = False
+                for s in range(link_lo[lk], link_hi[lk]):
+                    gap = 0.0
+                    for j in range(3):
+                        local = 0.0
+                        for i in range(3):
+                            local += (centres[s, i] - box_c[b, i]) * box_R[b, i, j]
+                        over = abs(local) - box_h[b, j]
+                        if over > 0.0:
+                            gap += over * over
+                    limit = reach + sph_r[s]
+                    if gap <= limit * limit:
+                        touches = True
+                        break
+                if not touches:
+                    continue
+                if hull_lo[lk] < hull_hi[lk]:
+                    if not placed[lk]:  # the hull's vertices in the world, once
+                        F = frames[n, link_frame[lk]]
+                        for v in range(hull_lo[lk], hull_hi[lk]):
+                            for i in range(3):
+                                hull[v, i] = (F[i, 0] * hull_v[v, 0] + F[i, 1] * hull_v[v, 1]
+                                              + F[i, 2] * hull_v[v, 2] + F[i, 3])
+                        placed[lk] = True
+                    apart = False
+                    for j in range(3):
+                        lo, hi = np.inf, -np.inf
+                        for v in range(hull_lo[lk], hull_hi[lk]):
+                            t = 0.0
+                            for i in range(3):
+                                t += (hull[v, i] - box_c[b, i]) * box_R[b, i, j]
+                            lo = min(lo, t)
+                            hi = max(hi, t)
+                        if lo - box_h[b, j] > reach or -box_h[b, j] - hi > reach:
+                            apart = True
+                            break
+                    if apart:
+                        continue
+                out[n, b] = True
+                break
         for p in range(body_lo.shape[0]):
             hit = False
             for s in range(sph_c.shape[0]):
@@ -100,11 +146,11 @@ def compile_kernel() -> None:
     planning call's wall-clock cap starts."""
     global _COMPILED
     if not _COMPILED:
-        near_bodies(np.zeros((1, 8, 3, 4)), np.zeros(1, np.int64), np.zeros((1, 3)),
-                    np.zeros(1), np.zeros((1, 3)), np.zeros((1, 3, 3)), np.zeros((1, 3)),
-                    np.zeros((1, 3)), np.zeros(1), np.zeros(1, np.int64),
-                    np.ones(1, np.int64), np.zeros((1, 3)), np.ones(1), np.zeros(1, np.int64),
-                    np.ones(1, np.int64), 0.0, np.zeros((1, 2), np.bool_))
+        one, ints = np.zeros(1, np.int64), np.ones(1, np.int64)
+        near_bodies(np.zeros((1, 8, 3, 4)), one, one, ints, np.zeros((1, 3)), np.zeros(1),
+                    one, ints, np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3, 3)),
+                    np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(1), one, ints,
+                    np.zeros((1, 3)), np.ones(1), one, ints, 0.0, np.zeros((1, 2), np.bool_))
         _COMPILED = True
 
 
@@ -121,10 +167,18 @@ class BoundedDistances:
         self._origins = np.ascontiguousarray(spheres.panda_chain().origins[:7, :3])
         model = spheres.panda_spheres(fast_check.MARGIN,
                                       fingers=float(panda.finger_positions[0]))
-        moving = model.links != -1  # the base link's points are no contacts
-        self._sph = (np.ascontiguousarray(model.frames[moving], dtype=np.int64),
-                     np.ascontiguousarray(model.centres[moving]),
-                     np.ascontiguousarray(model.radii[moving]))
+        hulls = spheres.panda_hulls(fingers=float(panda.finger_positions[0]))
+        links = [k for k in spheres.LINKS if k != -1]  # the base link's points are no contacts
+        counts = [int((model.links == k).sum()) for k in links]
+        sizes = [len(hulls[k]) for k in links]
+        lo, hlo = np.cumsum([0] + counts), np.cumsum([0] + sizes)
+        keep = np.concatenate([np.flatnonzero(model.links == k) for k in links])
+        self._robot = (np.array([spheres.FRAME_OF_LINK[k] for k in links], dtype=np.int64),
+                       lo[:-1].astype(np.int64), lo[1:].astype(np.int64),
+                       np.ascontiguousarray(model.centres[keep]),
+                       np.ascontiguousarray(model.radii[keep]),
+                       hlo[:-1].astype(np.int64), hlo[1:].astype(np.int64),
+                       np.ascontiguousarray(np.concatenate([hulls[k] for k in links])))
         boxes, others, always = [], [], []
         for k, body in enumerate(self.bodies):
             box = fast_check._box_of(c, body)
@@ -164,7 +218,7 @@ class BoundedDistances:
         frames = np.empty((len(states), 8, 3, 4))
         collide.arm_frames(states, self._base, self._origins, frames)
         near = np.empty((len(states), len(self._columns)), dtype=np.bool_)
-        near_bodies(frames, *self._sph, *self._world, self.query + SAFETY, near)
+        near_bodies(frames, *self._robot, *self._world, self.query + SAFETY, near)
         out = np.zeros((len(states), len(self.bodies)), dtype=bool)
         out[:, self._columns] = near
         out[:, self._always] = True
