@@ -161,37 +161,9 @@ def test_bad_trajopt_settings_are_refused_naming_the_key():
 
 
 # -- the fast paths give today's answers (issue 27, item 3) ---------------------------------
-#: TrajOpt's module before its speed-up (box_lbfgsb, bounded distances, the certified
+#: TrajOpt's module before its speed-up (bounded distances, the certified
 #: re-check): the answers of every setting must stay what they were
 BEFORE = "4e14f96"
-
-
-def test_box_lbfgsb_is_scipys_minimize_bit_for_bit():
-    import scipy
-    from scipy.optimize import minimize
-
-    from pipeline.planning.blas import single_thread
-    from pipeline.planning.trajopt import LBFGSB, _loop_agrees, box_lbfgsb
-
-    version = tuple(int(v) for v in scipy.__version__.split(".")[:2])
-    rng = np.random.default_rng(7)
-    with single_thread():  # as TrajOpt calls it (BLAS threads on a busy machine crawl)
-        if (1, 15) <= version <= (1, 17):
-            assert _loop_agrees()  # the loop copies these versions' driver: it runs
-        for size in (1, 3, 12, 60, 150):
-            for scale in (1e-3, 1.0, 1e3):  # weak, medium, strong coupling of the hinges
-                A = rng.normal(size=(size, max(1, size // 2)))
-                Q, c = scale * (A @ A.T), rng.normal(size=size)
-
-                def dual(lam, Q=Q, c=c):
-                    Ql = Q @ lam
-                    return 0.5 * float(lam @ Ql) + float(c @ lam), Ql + c
-
-                mu = float(rng.choice([10.0, 1e3]))
-                lam0 = np.where(c < 0, mu, 0.0)
-                ref = minimize(dual, lam0, jac=True, method="L-BFGS-B",
-                               bounds=[(0.0, mu)] * size, options=dict(LBFGSB)).x
-                assert box_lbfgsb(dual, lam0, mu).tobytes() == ref.tobytes(), (size, scale)
 
 
 def _through(goals, count=25):

@@ -27,10 +27,10 @@ result is a function of the inputs alone.  The waypoints are only checked at the
 Cost (issue 27, item 3).  With ``planner.collision=spheres`` (the default) pybullet is asked
 for distances only to bodies a sphere bound cannot rule out (:mod:`pipeline.sim.fast_distance`)
 and the dense re-check runs the sphere pre-check (:mod:`pipeline.sim.fast_check`); the dual
-is solved by scipy's L-BFGS-B routine through a copy of minimize's driver loop
-(:func:`box_lbfgsb`), and the operators of the cost are made once per size.  None of this
-changes a bit of a result: ``collision=exact`` and the code before give the same statuses,
-checks and paths (tests/test_trajopt.py, benchmarks/bench_trajopt.py).
+is solved by scipy's L-BFGS-B (:func:`box_lbfgsb`), and the operators of the cost are made
+once per size.  None of this changes a bit of a result: ``collision=exact`` and the code
+before give the same statuses, checks and paths (tests/test_trajopt.py,
+benchmarks/bench_trajopt.py).
 """
 
 from __future__ import annotations
@@ -189,89 +189,15 @@ class _Problem:
         return z, self.model(z, z0, d, G, mu, rho)
 
 
-#: L-BFGS-B's settings for the dual (scipy.optimize.minimize's options, as always used here)
+#: L-BFGS-B's settings for the dual (scipy.optimize.minimize's options)
 LBFGSB = {"maxiter": 500, "ftol": 1e-14, "gtol": 1e-10}
 
 
 def box_lbfgsb(fun, x0: np.ndarray, upper: float) -> np.ndarray:
     """The minimiser of ``fun`` (``x -> (value, gradient)``) over the box [0, upper]^n from
-    ``x0`` by L-BFGS-B with :data:`LBFGSB`: bit for bit what
-    ``scipy.optimize.minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=[(0, upper)] *
-    n, options=LBFGSB).x`` returns, without minimize's wrappers (about 0.15 ms per
-    evaluation of ``fun``, more than the evaluation).  Where this scipy's L-BFGS-B routine
-    does not answer as :func:`_lbfgsb_loop` expects (checked once per process against
-    minimize), minimize itself is called."""
-    if _loop_agrees():
-        return _lbfgsb_loop(fun, x0, upper, **LBFGSB)
+    ``x0`` by scipy's L-BFGS-B with :data:`LBFGSB`."""
     return minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=[(0.0, upper)] * len(x0),
                     options=dict(LBFGSB)).x
-
-
-def _lbfgsb_loop(fun, x0, upper, *, maxiter: int, ftol: float, gtol: float,
-                 maxcor: int = 10, maxls: int = 20, maxfun: int = 15000) -> np.ndarray:
-    """scipy's L-BFGS-B driver (``scipy.optimize._lbfgsb_py._minimize_lbfgsb``, scipy >=
-    1.15) for bounds [0, upper] on every variable: the same calls of the compiled routine
-    with the same arguments, ``fun`` evaluated where minimize's memo would evaluate it
-    (at the start and at every new point), the same stopping rules."""
-    from scipy.optimize import _lbfgsb
-
-    m, n = maxcor, len(x0)
-    x = np.array(np.clip(np.asarray(x0, float), 0.0, upper), dtype=np.float64)
-    f0, g0 = fun(x.copy())  # minimize evaluates at the start when it sets up
-    last, nfev = x.copy(), 1
-    low, high = np.zeros(n), np.full(n, float(upper))
-    nbd = np.full(n, 2, dtype=np.int32)
-    f, g = np.array(0.0, dtype=np.float64), np.zeros(n)
-    wa = np.zeros(2 * m * n + 5 * n + 11 * m * m + 8 * m)
-    iwa = np.zeros(3 * n, dtype=np.int32)
-    task, ln_task = np.zeros(2, dtype=np.int32), np.zeros(2, dtype=np.int32)
-    lsave, isave = np.zeros(4, dtype=np.int32), np.zeros(44, dtype=np.int32)
-    dsave = np.zeros(29)
-    factr = ftol / np.finfo(float).eps
-    iterations = 0
-    while True:
-        g = g.astype(np.float64)
-        _lbfgsb.setulb(m, x, low, high, nbd, f, g, factr, gtol, wa, iwa, task, lsave, isave,
-                       dsave, maxls, ln_task)
-        if task[0] == 3:  # f and g wanted at x
-            if x[0] != last[0] or not (x == last).all():  # np.array_equal, faster
-                last = x.copy()
-                f0, g0 = fun(x.copy())
-                nfev += 1
-            f, g = f0, g0
-        elif task[0] == 1:  # a new iteration
-            iterations += 1
-            if iterations >= maxiter:
-                task[0], task[1] = 5, 504
-            elif nfev > maxfun:
-                task[0], task[1] = 5, 502
-        else:
-            return x
-
-
-@functools.cache
-def _loop_agrees() -> bool:
-    """Does :func:`_lbfgsb_loop` give minimize's answers bit for bit (a few box-bounded
-    quadratics, some hitting the bounds, one stopped by maxiter)?"""
-    try:
-        rng = np.random.default_rng(0)
-        for size, maxiter in ((1, 500), (7, 500), (40, 500), (40, 3)):
-            A = rng.normal(size=(size, size))
-            Q, c = A @ A.T + 0.1 * np.eye(size), rng.normal(size=size)
-
-            def fun(x, Q=Q, c=c):
-                Qx = Q @ x
-                return 0.5 * float(x @ Qx) + float(c @ x), Qx + c
-
-            x0 = np.where(c < 0, 2.0, 0.0)
-            opts = {**LBFGSB, "maxiter": maxiter}
-            ref = minimize(fun, x0, jac=True, method="L-BFGS-B",
-                           bounds=[(0.0, 2.0)] * size, options=opts).x
-            if ref.tobytes() != _lbfgsb_loop(fun, x0, 2.0, **opts).tobytes():
-                return False
-        return True
-    except Exception:  # another scipy: its own driver
-        return False
 
 
 @functools.lru_cache(maxsize=8)
