@@ -16,8 +16,8 @@ otherwise):
 The projection: ``n·m`` entries × CPU-s per entry + ``n`` RAWPLANNER solves, divided by the
 cores.  It leaves out what does not scale with the entries (sampling instances, the
 evaluation; seconds) and the pipeline's own overhead (``benchmarks/bench_pipeline.py``
-measures it), so it is a lower bound; ``--real`` runs one store for real at a given size
-and prints its wall time next to the projection of that same size.
+measures it), and the sample's mean has its own error; ``--real`` runs one store for real
+at a given size and prints its wall time next to the projection of that same size.
 
 The paper's sizes (§V): grasp_arm 1800 × 162, grasp_base 1000 × 1000, pick_place 1500 × 1000.
 TrajOpt runs on grasp_arm and grasp_base only (the paper's TrajOpt stores).
@@ -184,7 +184,8 @@ def report(rows: dict, args) -> None:
     c = args.cores
     print(f"Paper-scale stage=generate, projected from one-core samples ({args.instances} "
           f"instances × up to {args.constraints} constraints per domain × planner, "
-          f"RAWPLANNER on {args.raw} instances); wall = CPU / {c} cores, a lower bound")
+          f"RAWPLANNER on {args.raw} instances); wall = CPU / {c} cores, the pipeline's "
+          "overhead left out")
     head = (f"  {'domain':<11}{'planner':<13}{'paper n × m':>14}{'ms/entry':>10}"
             f"{'s/RAW':>7}{'feasible':>10}{'CPU-h':>7}{f'wall, {c} cores':>17}")
     print(head)
