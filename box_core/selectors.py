@@ -446,7 +446,7 @@ class TrainingOutcomes:
 @register("eips")
 class Eips(Policy):
     """EIPS, expected improvement per second: the untried column with the best expected
-    gain per expected second of planning (after Snoek, Larochelle and Adams 2012), for this
+    gain per typical second of planning (after Snoek, Larochelle and Adams 2012), for this
     discrete, correlated setting.
 
     Feasibility model: the training rows, weighted by how well they agree with what this
@@ -480,10 +480,14 @@ class Eips(Policy):
     failures look like those of instances where this grasp ran the planner out of budget
     expects that cost.
 
-    Gain: while nothing feasible has been found, p_j, so the ratio p_j / tau_j is the
-    classic optimal search order for independent tries (Kadane), here re-ranked after every
-    try.  After the first feasible plan, the expected improvement of the best score under
-    BOX's Gaussian posterior (all tries, failures at the failure value):
+    Gain: while nothing feasible has been found, p_j, so the order is by p_j / tau_j.  For
+    independent tries with success probabilities p_j and *expected* costs c_j, decreasing
+    p_j / c_j is the order that minimises the expected time to the first success (Kadane);
+    here it is a heuristic after that rule, not an optimum: tau_j is built from geometric
+    means (a typical cost, below the expected one for heavy-tailed times), and the tries are
+    not independent (p and tau are re-estimated after every try).  After the first
+    feasible plan, the expected improvement of the best score under BOX's Gaussian
+    posterior (all tries, failures at the failure value):
     EI_j = s (z Phi(z) + phi(z)), z = (mu_j - best) / s, s the posterior std (EI_j =
     max(mu_j - best, 0) when s = 0 or z >= :data:`Z_LIMIT`, 0 when z <= -Z_LIMIT), divided
     by tau_j.  Ties go to the lowest index.
@@ -575,7 +579,7 @@ class Eips(Policy):
         return argmax_untried(self.values(), self.tried, np.zeros(self.ctx.size))
 
     def values(self) -> np.ndarray:
-        """Expected gain per expected second, (B, m): what :meth:`propose` maximises."""
+        """Expected gain per typical second, (B, m): what :meth:`propose` maximises."""
         gain, tau = self.expected()
         found = np.flatnonzero(np.isfinite(self._best))
         kept = self._cols
