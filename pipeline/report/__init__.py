@@ -5,8 +5,12 @@ renders of the first feasible plan BOX finds, as report.md and a self-contained 
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import multiprocessing
+import os
+from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import asdict
 from pathlib import Path
 
@@ -96,7 +100,38 @@ def make_report(paths, out_dir: Path, settings: dict, say=print) -> dict[str, Pa
     """
     results = [load(p) for p in paths]
     tell_apart(results)
-    out_dir = Path(out_dir)
+    with _learning_curves_beside(results, settings) as curve_jobs:
+        return _write(results, curve_jobs, Path(out_dir), settings, say)
+
+
+def _curve_settings(res: StoreResults, settings: dict) -> dict:
+    return {"selectors": [s for s in ("box", "eips", "static") if s in res.order],
+            "fractions": settings["fractions"], "repeats": settings["repeats"],
+            "seed": res.seed, **_matrix(res)}
+
+
+@contextlib.contextmanager
+def _learning_curves_beside(results, settings: dict):
+    """Futures of the stores' learning curves.  With a second core they are computed in a
+    second process while this one draws the figures and tunes C (the two are the report's
+    longest computations, leave-one-out runs of about 45 s each at 1000 × 162); on one core
+    they are computed here first.  The numbers are the same either way: both are seeded
+    functions of the matrix alone."""
+    jobs = [(res.scores, _curve_settings(res, settings)) for res in results]
+    if len(os.sched_getaffinity(0)) < 2:
+        done = []
+        for scores, kwargs in jobs:
+            done.append(Future())
+            done[-1].set_result(box_core.learning_curve(scores, **kwargs))
+        yield done
+        return
+    with ProcessPoolExecutor(max_workers=1,
+                             mp_context=multiprocessing.get_context("spawn")) as pool:
+        yield [pool.submit(box_core.learning_curve, scores, **kwargs)
+               for scores, kwargs in jobs]
+
+
+def _write(results, curve_jobs, out_dir: Path, settings: dict, say) -> dict[str, Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     formats = settings["formats"]
     doc = Document("BOX: constraint selection in score space")
@@ -144,16 +179,16 @@ def make_report(paths, out_dir: Path, settings: dict, say=print) -> dict[str, Pa
               f"{figures.OPTIMAL_SHARE:.0%} of the way from the failure value to it; the axis "
               "ends at 3x the time the first curve reaches that line.")
 
+    # C is tuned here while the learning curves are computed beside (their section is first)
+    tunings = [box_core.tune_c(res.scores, grid=settings["c_grid"], folds=settings["c_folds"],
+                               seed=res.seed, **_matrix(res)) for res in results]
+
     doc.heading("Learning curve")
     doc.text("Each repeat holds out 20 % of the instances and trains on growing shares of the "
              f"rest ({settings['repeats']} repeats, planning time only).")
     curves = []
-    for res in results:
-        selectors = [s for s in ("box", "eips", "static") if s in res.order]
-        points = box_core.learning_curve(res.scores, selectors=selectors,
-                                         fractions=settings["fractions"],
-                                         repeats=settings["repeats"], seed=res.seed,
-                                         **_matrix(res))
+    for res, job in zip(results, curve_jobs, strict=True):
+        points = job.result()
         curves.append(points)
         doc.heading(res.label, 3)
         doc.table(["selector", "share of rows", "training instances", "mean time (s)",
@@ -169,11 +204,7 @@ def make_report(paths, out_dir: Path, settings: dict, say=print) -> dict[str, Pa
              f"{settings['c_folds']}-fold nested cross-validation: the C of a fold is the one "
              "with the lowest leave-one-out mean over the other folds only, so a held-out "
              "instance never influences its own C.")
-    tunings = []
-    for res in results:
-        tuning = box_core.tune_c(res.scores, grid=settings["c_grid"], folds=settings["c_folds"],
-                                 seed=res.seed, **_matrix(res))
-        tunings.append(tuning)
+    for res, tuning in zip(results, tunings, strict=True):
         s = tuning.summary()
         doc.heading(res.label, 3)
         rows = [[f"{c:g}", fmt(v[0]), f"[{fmt(v[1])}, {fmt(v[2])}]"]
