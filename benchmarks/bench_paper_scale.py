@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -40,13 +39,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from child_runs import run_child
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = {"grasp_arm": (1800, 162), "grasp_base": (1000, 1000), "pick_place": (1500, 1000)}
 PLANNERS = {"grasp_arm": ("rrt_connect", "trajopt"), "grasp_base": ("rrt_connect", "trajopt"),
             "pick_place": ("rrt_connect",)}
-ONE_THREAD = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                               "NUMBA_NUM_THREADS")}
 TARGET_S = 3600.0  # issue 27: all three RRT-Connect stores within an hour on 2 cores
 
 
@@ -104,12 +102,7 @@ def child(job: dict) -> None:
 def measure(domain: str, planner: str, args) -> dict:
     job = {"domain": domain, "planner": planner, "seed": args.seed, "raw": args.raw,
            "instances": args.instances, "constraints": args.constraints}
-    env = dict(os.environ, **ONE_THREAD, PYTHONPATH=str(ROOT))
-    done = subprocess.run([sys.executable, __file__, "--child", json.dumps(job)], cwd=ROOT,
-                          env=env, capture_output=True, text=True)
-    if done.returncode:
-        raise RuntimeError(f"{domain} × {planner}: {done.stderr[-3000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    return run_child(__file__, job, ROOT, f"{domain} × {planner}")
 
 
 # -- the parent -------------------------------------------------------------------------

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
 import statistics
 import subprocess
@@ -40,13 +39,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from child_runs import agreement, run_child
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_MS = 4.0
 #: the revision before issue 27's item 1 (the sphere pre-check of issue 26, 18 ms/entry)
 BASELINE_REV = "641b270"
-ONE_THREAD = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                               "NUMBA_NUM_THREADS")}
 COLUMNS = ("status", "feasible", "step", "checks", "length", "score")
 #: the wall-clock safety net out of reach: ``exact`` spends seconds on some entries, and a
 #: "timeout" there would be the machine's speed, not a disagreement
@@ -130,25 +128,8 @@ def baseline(rev: str, into: Path) -> Path | None:
 
 def run(variant: str, root: Path, collision: str, data: Path, out: Path,
         profile: bool) -> dict:
-    env = dict(os.environ, **ONE_THREAD, PYTHONPATH=str(root))
     job = {"data": str(data), "out": str(out), "collision": collision, "profile": profile}
-    done = subprocess.run([sys.executable, __file__, "--child", json.dumps(job)], cwd=root,
-                          env=env, capture_output=True, text=True)
-    if done.returncode:
-        raise RuntimeError(f"{variant}: {done.stderr[-3000:]}")
-    if profile:
-        print(f"-- cProfile of {variant} (top 25 by own time)\n" + done.stderr[-6000:])
-    return json.loads(done.stdout.strip().splitlines()[-1])
-
-
-def same(a: Path, b: Path) -> np.ndarray:
-    """(entries,) whether every column agrees bit for bit (NaN lengths of failures too)."""
-    x, y = np.load(a), np.load(b)
-    agree = np.ones(x["status"].shape, dtype=bool)
-    for k in COLUMNS:
-        u, v = x[k], y[k]
-        agree &= (u == v) | (np.isnan(u) & np.isnan(v)) if u.dtype.kind == "f" else (u == v)
-    return agree
+    return run_child(__file__, job, root, variant, profile)
 
 
 def main() -> None:
@@ -205,7 +186,7 @@ def report(args, times: dict, tmp: Path, variants: dict) -> None:
           + ("met" if med["new"]["cpu_ms"] <= TARGET_MS else "not met")
           + f" ({med['new']['cpu_ms']:.2f} ms cpu, {med['new']['wall_ms']:.2f} ms wall)")
     for other in [v for v in variants if v != "new"]:
-        agree = same(tmp / "new.npz", tmp / f"{other}.npz")
+        agree = agreement(tmp / "new.npz", tmp / f"{other}.npz", COLUMNS)
         print(f"  new vs {other}: {agree.mean():.2%} of entries identical ({agree.sum()} of "
               f"{agree.size}: {', '.join(COLUMNS)})")
     status = times["new"][-1]["status"]

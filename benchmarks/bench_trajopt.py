@@ -39,7 +39,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import os
 import shutil
 import statistics
 import subprocess
@@ -50,6 +49,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+from child_runs import agreement, run_child
 
 ROOT = Path(__file__).resolve().parents[1]
 #: issue 27, item 3: TrajOpt within 3x of RRT-Connect per entry
@@ -57,8 +57,6 @@ TARGET_RATIO = 3.0
 #: the revision before TrajOpt's speed-up
 BASELINE_REV = "4e14f96"
 MODULE = "pipeline/planning/trajopt.py"
-ONE_THREAD = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
-                               "NUMBA_NUM_THREADS")}
 COLUMNS = ("status", "feasible", "step", "checks", "length", "score", "path")
 WALL_CAP_S = 1e6
 RUN_SEED = 1
@@ -173,27 +171,9 @@ def baseline(rev: str, into: Path) -> Path | None:
 
 def run(variant: str, name: str, root: Path, data: Path, out: Path, profile: bool) -> dict:
     planner, collision = VARIANTS[variant]
-    env = dict(os.environ, **ONE_THREAD, PYTHONPATH=str(root))
     job = {"domain": name, "planner": planner, "collision": collision, "data": str(data),
            "out": str(out), "profile": profile}
-    done = subprocess.run([sys.executable, __file__, "--child", json.dumps(job)], cwd=root,
-                          env=env, capture_output=True, text=True)
-    if done.returncode:
-        raise RuntimeError(f"{name} {variant}: {done.stderr[-3000:]}")
-    if profile:
-        print(f"-- cProfile of {name} {variant} (top 25 by own time)\n"
-              + done.stderr[-6000:])
-    return json.loads(done.stdout.strip().splitlines()[-1])
-
-
-def same(a: Path, b: Path) -> np.ndarray:
-    """(entries,) whether every column agrees bit for bit (NaN lengths of failures too)."""
-    x, y = np.load(a), np.load(b)
-    agree = np.ones(x["status"].shape, dtype=bool)
-    for k in COLUMNS:
-        u, v = x[k], y[k]
-        agree &= (u == v) | (np.isnan(u) & np.isnan(v)) if u.dtype.kind == "f" else (u == v)
-    return agree
+    return run_child(__file__, job, root, f"{name} {variant}", profile)
 
 
 def main() -> None:
@@ -257,7 +237,7 @@ def report(name: str, args, times: dict, tmp: Path) -> None:
         print(f"  trajopt speed-up over {args.baseline_rev}: "
               f"{med['base']['cpu_ms'] / med['new']['cpu_ms']:.2f}x cpu")
     for other in [v for v in times if v not in ("new", "rrt")]:
-        agree = same(tmp / f"{name}.new.npz", tmp / f"{name}.{other}.npz")
+        agree = agreement(tmp / f"{name}.new.npz", tmp / f"{name}.{other}.npz", COLUMNS)
         print(f"  trajopt new vs {other}: {agree.mean():.2%} of entries identical "
               f"({agree.sum()} of {agree.size}: {', '.join(COLUMNS)})")
     for v in ("rrt", "new"):

@@ -1,0 +1,42 @@
+"""What the per-variant benchmarks (bench_pick_place, bench_trajopt, bench_paper_scale)
+share: each variant runs in its own process on one core, reports one JSON line, and saves
+its result arrays so that variants can be compared entry by entry."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+#: one thread for every numeric library a child may load: CPU time per entry, one core
+ONE_THREAD = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS",
+                               "NUMBA_NUM_THREADS")}
+
+
+def run_child(script: str, job: dict, root: Path, label: str, profile: bool = False) -> dict:
+    """``python script --child JSON`` with the code under ``root`` first on the path (this
+    checkout, or another revision's copy); its last stdout line, parsed.  With ``profile``
+    the child's cProfile table (printed to stderr) is shown."""
+    env = dict(os.environ, **ONE_THREAD, PYTHONPATH=str(root))
+    done = subprocess.run([sys.executable, script, "--child", json.dumps(job)], cwd=root,
+                          env=env, capture_output=True, text=True)
+    if done.returncode:
+        raise RuntimeError(f"{label}: {done.stderr[-3000:]}")
+    if profile:
+        print(f"-- cProfile of {label} (top 25 by own time)\n" + done.stderr[-6000:])
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def agreement(a: Path, b: Path, columns) -> np.ndarray:
+    """(entries,) whether every one of ``columns`` of two saved variants agrees bit for bit
+    (NaN where both are NaN, as failures' lengths are)."""
+    x, y = np.load(a), np.load(b)
+    agree = np.ones(x["status"].shape, dtype=bool)
+    for k in columns:
+        u, v = x[k], y[k]
+        agree &= (u == v) | (np.isnan(u) & np.isnan(v)) if u.dtype.kind == "f" else (u == v)
+    return agree
