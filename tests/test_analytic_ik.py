@@ -18,7 +18,6 @@ from pipeline.planning import Status
 from pipeline.sim import analytic_ik
 from pipeline.sim import panda as P
 from pipeline.store import THETA, ScoreStore
-from pipeline.validation import ConfigError, validate
 from pipeline.worker import entry_seed
 from tests import pipeline_runs as pr
 from tests import replay
@@ -102,15 +101,6 @@ def test_identity_records_ik_only_when_it_is_not_the_older_behaviour():
     assert analytic["domain"]["ik"] == "analytic"
     assert differing_keys(damped, analytic) == ["domain.ik"]
     assert "ik" not in identity(composed("domain=planar"))["domain"]
-
-
-@pytest.mark.parametrize("overrides, words", [
-    (("domain=grasp_arm", "domain.ik=fast"), "domain.ik must be one of damped, analytic"),
-    (("domain=pick_place", "domain.ik=numeric"), "domain.ik"),
-])
-def test_a_bad_ik_value_is_refused_up_front(overrides, words):
-    with pytest.raises(ConfigError, match=words):
-        validate(composed("stage=instances", "instances.n=10", *overrides))
 
 
 def test_planar_has_no_ik_and_refuses_the_key_in_one_line(tmp_path):
