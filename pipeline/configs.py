@@ -242,24 +242,17 @@ LATER_KEYS = {
 
 
 def _drop_if(ident: dict, key: str, value) -> None:
-    """Remove ``key`` (dotted: an IDENTITY_KEYS entry, then the path inside it) from
+    """Remove ``key`` (dotted: a group of IDENTITY_KEYS, then the path inside it) from
     ``ident`` when it holds ``value``."""
-    for top in IDENTITY_KEYS:
-        if key == top or key.startswith(top + "."):
-            node, path = ident.get(top), key[len(top) + 1:].split(".") if key != top else []
-            break
-    else:
+    top = next((t for t in IDENTITY_KEYS if key.startswith(t + ".")), None)
+    if top is None:
         raise ValueError(f"LATER_KEYS: {key} is not inside any of IDENTITY_KEYS")
-    if not path:
-        if node == value:
-            del ident[key]
-        return
-    for part in path[:-1]:
-        if not isinstance(node, dict):
-            return
-        node = node.get(part)
-    if isinstance(node, dict) and path[-1] in node and node[path[-1]] == value:
-        del node[path[-1]]
+    *parents, last = key[len(top) + 1:].split(".")
+    node = ident[top]
+    for part in parents:
+        node = node.get(part) if isinstance(node, dict) else None
+    if isinstance(node, dict) and last in node and node[last] == value:
+        del node[last]
 
 
 def config_hash(ident: dict) -> str:
