@@ -138,6 +138,20 @@ def real_run(domain: str, n: int, m: int) -> dict:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+def real_size(text: str) -> tuple[str, int, int]:
+    """``--real``'s DOMAIN:NxM."""
+    try:
+        domain, size = text.split(":")
+        n, m = (int(x) for x in size.split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected DOMAIN:NxM, e.g. "
+                                         "grasp_base:1000x1000") from None
+    if domain not in PAPER or n < 1 or m < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: DOMAIN one of {', '.join(PAPER)}, "
+                                         "N and M at least 1")
+    return domain, n, m
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--raw", type=int, default=30, help="RAWPLANNER instances (Θ̂ and its cost)")
@@ -148,14 +162,18 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=2017)
     ap.add_argument("--only", choices=sorted(PAPER))
     ap.add_argument("--planners", default="rrt_connect,trajopt")
-    ap.add_argument("--real", help="DOMAIN:NxM, one real stage=generate run, e.g. "
-                                   "grasp_base:1000x1000")
+    ap.add_argument("--real", type=real_size, help="DOMAIN:NxM, one real stage=generate "
+                    "run, e.g. grasp_base:1000x1000")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         child(json.loads(args.child))
         return
     wanted = args.planners.split(",")
+    unknown = sorted(set(wanted) - {"rrt_connect", "trajopt"})
+    if unknown or args.cores < 1:
+        ap.error(f"--planners: unknown {', '.join(unknown)}" if unknown
+                 else "--cores must be at least 1")
     rows = {}
     for domain in [args.only] if args.only else PAPER:
         for planner in PLANNERS[domain]:
@@ -163,8 +181,7 @@ def main() -> None:
                 rows[domain, planner] = measure(domain, planner, args)
     report(rows, args)
     if args.real:
-        domain, size = args.real.split(":")
-        n, m = (int(x) for x in size.split("x"))
+        domain, n, m = args.real
         row = rows.get((domain, "rrt_connect")) or measure(domain, "rrt_connect", args)
         got = real_run(domain, n, m)
         print(f"\nreal run, {domain} {n} × {m}, RRT-Connect, LocalCluster on this machine: "

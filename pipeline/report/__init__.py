@@ -118,7 +118,8 @@ def _learning_curves_beside(results, settings: dict):
     they are computed here first.  The numbers are the same either way: both are seeded
     functions of the matrix alone."""
     jobs = [(res.scores, _curve_settings(res, settings)) for res in results]
-    if len(os.sched_getaffinity(0)) < 2:
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    if (cores or 1) < 2:
         done = []
         for scores, kwargs in jobs:
             done.append(Future())
