@@ -1,0 +1,37 @@
+"""Domains and planners from other packages, found through Python entry points.
+
+A package adds a domain or a planner by declaring an entry point in one of the groups below
+(in its ``pyproject.toml``), whose value is ``"module:Class"``:
+
+    [project.entry-points."box_planning.domains"]
+    shelf = "my_package.shelf:ShelfDomain"
+
+    [project.entry-points."box_planning.planners"]
+    lazy_rrt = "my_package.lazy:LazyRRT"
+
+Nothing is imported to list the names: the installed packages' metadata is read once per
+process, and a plug-in's module is imported only when its name is asked for (as xarray finds
+its backends).  A built-in name always wins over a plug-in of the same name, so installing a
+package never changes what an existing name computes.  docs/architecture.md explains the
+classes such an entry point must name.
+"""
+
+from __future__ import annotations
+
+import functools
+from importlib.metadata import entry_points
+
+#: entry-point group of each kind of plug-in (named after this distribution, box-planning)
+GROUPS = {"domain": "box_planning.domains", "planner": "box_planning.planners"}
+
+
+@functools.cache
+def plugin_targets(kind: str) -> dict[str, str]:
+    """name -> "module:Class" of every installed plug-in of ``kind`` ("domain" or
+    "planner"), without importing any of them."""
+    return {ep.name: ep.value for ep in entry_points(group=GROUPS[kind])}
+
+
+def registry(kind: str, builtins: dict[str, str]) -> dict[str, str]:
+    """The built-in names of ``kind`` and the installed plug-ins' (built-ins win)."""
+    return {**plugin_targets(kind), **builtins}
