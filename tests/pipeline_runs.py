@@ -22,7 +22,9 @@ def command(store: Path, *overrides: str) -> list[str]:
 
 
 def env() -> dict:
-    return {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    # faulthandler: a child stopped by finish() prints every thread's stack
+    return {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]),
+            "PYTHONFAULTHANDLER": "1"}
 
 
 def run(store: Path, *overrides: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
@@ -37,6 +39,19 @@ def start(store: Path, *overrides: str, cwd: Path | None = None) -> subprocess.P
     return subprocess.Popen(command(store, *overrides), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, cwd=cwd or store.parent,
                             env=env(), start_new_session=True, preexec_fn=_default_sigint)
+
+
+def finish(proc: subprocess.Popen, limit_s: float = 600) -> str:
+    """The output of a run started by :func:`start`, once it exits.  A run that has not
+    exited after ``limit_s`` (a hang, not slowness: the runs here take seconds) is stopped
+    with SIGABRT, so its output ends with every thread's stack, and the test fails there."""
+    try:
+        return proc.communicate(timeout=limit_s)[0]
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGABRT)
+        out = proc.communicate()[0]
+        raise AssertionError(f"the run did not exit within {limit_s:g} s; its output and "
+                             f"stacks:\n{out}") from None
 
 
 def _default_sigint() -> None:

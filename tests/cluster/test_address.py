@@ -96,7 +96,7 @@ def test_one_worker_killed_run_completes(tmp_path, dask_procs, local_reference):
                     "progress_every=0.01")
     assert _wait_for_blocks(store, proc) < 24 * 15  # killed mid-run
     kill(doomed)
-    out = proc.communicate()[0]
+    out = pr.finish(proc)
     assert proc.returncode == 0, out
     assert pr.same_matrix(pr.matrix(store), local_reference)
     # the lost worker's entries in progress are shown until its blocks run again; the
@@ -115,7 +115,7 @@ def test_all_workers_killed_watchdog_stops_the_run(tmp_path, dask_procs):
     _wait_for_blocks(store, proc)
     for w in workers:
         kill(w)
-    out = proc.communicate()[0]
+    out = pr.finish(proc)
     assert proc.returncode == 1, out
     assert "no Dask worker connected for 3 s (cluster.worker_timeout)" in out
     assert "re-run the same command to resume" in out

@@ -79,7 +79,7 @@ def test_slurm_run_with_a_cancelled_job(slurm, tmp_path, local_reference):
         jobs = our_jobs("R")
         assert jobs
         subprocess.run([*IN_NS, "scancel", jobs[0]], check=True)
-        out = proc.communicate()[0]
+        out = pr.finish(proc)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -98,7 +98,7 @@ def test_all_jobs_cancelled_watchdog_stops_the_run(slurm, tmp_path):
     try:
         wait_for_blocks(store, proc)
         subprocess.run([*IN_NS, "scancel", *our_jobs()], check=True)
-        out = proc.communicate()[0]
+        out = pr.finish(proc)
     finally:
         if proc.poll() is None:
             proc.kill()
