@@ -306,12 +306,14 @@ class Box(Policy):
 
 @register("pembo")
 class PemBo(Box):
-    """PEM-BO (Wang, Kim and Kaelbling, NeurIPS 2018) as its authors ran it.
+    """PEM-BO (Wang, Kim and Kaelbling, NeurIPS 2018): the paper's estimator, the authors'
+    UCB schedule.
 
     GP-UCB with the estimated prior: with N training rows and t observations so far on this
     instance, the conditioned posterior variance is multiplied once by (N - 1) / (N - t - 1)
-    (the unbiased estimate of the posterior variance; applied to the conditioned variance,
-    never compounded step after step) and the UCB coefficient is :func:`pembo_zeta` (t, N).
+    (the unbiased estimate of the posterior variance of the paper, applied once to the
+    conditioned variance; the authors' code compounds it step after step:
+    :class:`PemBoCompounded`) and the UCB coefficient is :func:`pembo_zeta` (t, N).
     Where the factor's denominator N - t - 1 would fall below 1 it is held at 1.
     """
 
@@ -329,6 +331,21 @@ class PemBo(Box):
     def variance_factor(self) -> float:
         N = self.ctx.prior.n_train
         return (N - 1) / max(N - self.t - 1, 1)
+
+
+@register("pembo_compounded")
+class PemBoCompounded(PemBo):
+    """PEM-BO with the variance factor compounded step after step, as the authors' code for
+    discrete domains does (its iterative GP conditions the previous step's scaled covariance
+    and scales it again): after t observations the conditioned variance is multiplied by
+    the product over s = 1..t of (N - 1) / (N - s - 1), each denominator held at 1 or more.
+    The paper's estimator, and ``pembo``, apply the last factor once.  Conditioning does not
+    depend on a common scale of the covariance, so the posterior mean is the same and the two
+    differ only in how much the UCB explores; docs/box_core.md gives the measured effect."""
+
+    def variance_factor(self) -> float:
+        N = self.ctx.prior.n_train
+        return math.prod((N - 1) / max(N - s - 1, 1) for s in range(1, self.t + 1))
 
 
 def pembo_margin(delta: float) -> int:

@@ -91,6 +91,28 @@ def pembo_order(train, truth, k, delta=0.01):
     return ucb_order(mu, S, truth, k, coef)
 
 
+def pembo_compounded_order(train, truth, k, delta=0.01):
+    """PEM-BO as the authors' discrete-domain code runs it: each observation conditions the
+    previous step's mean and (already scaled) covariance on one column, and the covariance
+    is then scaled again by (N - 1) / (N - t - 1), t the observations so far."""
+    mu, S = fit(train)
+    N, m = train.shape
+    jitter = JITTER * (S.diagonal().max() if S.diagonal().max() > 0 else 1.0)
+    mean, cov = mu.copy(), S.copy()
+    tried = np.zeros(m, dtype=bool)
+    scale = math.sqrt(max(S.diagonal().max(), 0.0))
+    idx = []
+    for t in range(k):
+        ucb = mean + pembo_zeta(t, N, delta) * np.sqrt(np.maximum(cov.diagonal(), 0.0))
+        j = pick(ucb, tried, scale)
+        tried[j] = True
+        idx.append(j)
+        gain = cov[:, j] / (cov[j, j] + jitter)
+        mean = mean + gain * (truth[j] - mean[j])
+        cov = (cov - np.outer(gain, cov[j, :])) * ((N - 1) / max(N - (t + 1) - 1, 1))
+    return idx
+
+
 def static_order(train, k):
     mu = train.mean(axis=0)
     return sorted(range(mu.size), key=lambda j: (-mu[j], j))[:k]
@@ -133,6 +155,8 @@ def loocv_orders(D, name, k, seed=0, features=None, **params):
             out.append(box_order(train, truth, k, **params))
         elif name == "pembo":
             out.append(pembo_order(train, truth, k, **params))
+        elif name == "pembo_compounded":
+            out.append(pembo_compounded_order(train, truth, k, **params))
         elif name == "static":
             out.append(static_order(train, k))
         elif name == "rand":

@@ -8,7 +8,7 @@ from box_core.failure import failure_value, fill_failures
 from tests import reference
 from tests.matrices import degenerate, well_conditioned
 
-ALL = ("box", "static", "rand", "doo", "pembo", "oracle")
+ALL = ("box", "static", "rand", "doo", "pembo", "pembo_compounded", "oracle")
 
 
 def features_for(m, seed=0):

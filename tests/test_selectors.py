@@ -35,6 +35,16 @@ def test_pembo_order_equals_direct_implementation(m, seed):
     assert run(make_selector("pembo", train), truth, m) == reference.pembo_order(train, truth, m)
 
 
+@settings(max_examples=15, deadline=None)
+@given(m=st.integers(2, 15), seed=st.integers(0, 10_000))
+def test_pembo_compounded_equals_the_authors_iterative_procedure(m, seed):
+    # 2m + 2 rows: the compounded factor grows to about e over m tries
+    D = well_conditioned(2 * m + 2, m, seed)
+    train, truth = D[:-1], D[-1]
+    assert (run(make_selector("pembo_compounded", train), truth, m)
+            == reference.pembo_compounded_order(train, truth, m))
+
+
 def test_pembo_zeta_is_the_published_schedule_where_defined():
     # zeta_t of Wang, Kim and Kaelbling's code, written out for N = 1000, t = 5, delta = 0.01
     N, t, delta = 1000, 5, 0.01
