@@ -71,15 +71,14 @@ class RawSearch:
 class Domain(abc.ABC):
     """A family of planning problems ω and their solution constraints θ.
 
-    Subclasses set ``name``, ``config_class`` (a dataclass, the schema of
-    ``conf/domain/<name>.yaml``), ``fixed_constraints`` (True when Θ is a fixed set,
+    Subclasses set ``name``, ``fixed_constraints`` (True when Θ is a fixed set,
     False when it is extracted from RAWPLANNER's solutions), ``steps``, ``theta_features``
     and ``length_units``, and get their planners from :meth:`planner_for` (never by the
-    planner's name).
+    planner's name).  A domain's config schema (a dataclass) is declared apart, in a module
+    that loads no simulator, and names the subclass (:mod:`pipeline.domains`).
     """
 
     name: ClassVar[str]
-    config_class: ClassVar[type]
     fixed_constraints: ClassVar[bool]
     #: the steps of one planning call, in order; a failed PlanResult names the one that
     #: failed in ``step`` (stored as its index in the ``step`` arrays of the store)

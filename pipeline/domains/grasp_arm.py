@@ -99,7 +99,6 @@ class GraspArmScene:
 
 class GraspArmDomain(Domain):
     name = "grasp_arm"
-    config_class = GraspArmConfig
     fixed_constraints = True
     steps = ("ik", "arm_path")
     theta_features = (Feature("arm", "1", "which Panda grasps: 0 or 1"), *GRASP_FEATURES)

@@ -74,7 +74,6 @@ class BaseGrasp:
 
 class GraspBaseDomain(Domain):
     name = "grasp_base"
-    config_class = GraspBaseConfig
     fixed_constraints = False
     steps = STEPS
     theta_features = (Feature("base_x", "m", "base position x"),

@@ -60,7 +60,6 @@ class PlanarScene(Robot):
 
 class PlanarDomain(Domain):
     name = "planar"
-    config_class = PlanarConfig
     fixed_constraints = False
     steps = ("via_leg", "goal_leg")
     theta_features = (Feature("via_x", "m", "via point x"), Feature("via_y", "m", "via point y"))

@@ -48,7 +48,6 @@ from pipeline.sim.world import pose_matrix, quaternion
 
 class PickPlaceDomain(Domain):
     name = "pick_place"
-    config_class = PickPlaceConfig
     fixed_constraints = False
     steps = tuple(plan_steps.STEPS)
     theta_features = (
