@@ -175,6 +175,20 @@ class Domain(abc.ABC):
         """RAWPLANNER's search on a checked instance."""
 
     @abc.abstractmethod
+    def recheck(self, instance, constraint, plan: PlanResult) -> dict[str, bool]:
+        """Re-check each motion of a feasible ``plan`` of π(instance, constraint) in a fresh
+        scene with the domain's exact robot model, every state at the resolution it was
+        planned at (:func:`pipeline.planning.path_is_free`): {motion: free}, plus any
+        other condition a solution must meet.  The contract suite's check that a planner
+        returns collision-free paths, independent of the checks the planner made."""
+
+    def check_limit(self) -> int:
+        """The most collision checks one planning call may report: one budget of
+        ``planner.max_checks`` shared by the call's motions (a domain whose steps check
+        more, such as IK solutions or further budgets, says how many)."""
+        return self.planner.max_checks
+
+    @abc.abstractmethod
     def build_scene(self, instance):
         """A scene with ``client_id``, ``robot_ids`` and ``set_configuration(q)``; the
         caller closes it (``close()``) when it has one."""

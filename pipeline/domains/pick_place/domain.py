@@ -234,6 +234,12 @@ class PickPlaceDomain(Domain):
         finally:
             self._scene.reset(inst)
 
+    def check_limit(self) -> int:
+        """Two arm paths' budgets, the base path's, one check per IK solution tried in the
+        place and pick IK, the placement's and the two base poses' checks."""
+        c = self.config
+        return 2 * self.planner.max_checks + c.base_max_checks + 2 * c.ik_restarts + 3
+
     # -- inspection ------------------------------------------------------------------------
     def recheck(self, instance, constraint, plan: PlanResult,
                 resolution: float | None = None) -> dict[str, bool]:
