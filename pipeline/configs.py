@@ -176,7 +176,7 @@ def register_configs() -> None:
     for name in domain_names():
         schema = domain_schema(name)
         cs.store(group="domain", name=f"{name}_schema", node=schema)
-        if not has_yaml(name):  # a plug-in's domain: its schema's defaults are the option
+        if not has_yaml(name):  # e.g. a plug-in's domain: its schema's defaults are the option
             cs.store(group="domain", name=name, node=OmegaConf.merge(
                 OmegaConf.structured(schema), {"name": name}))
     cs.store(group="hydra/help", name="pipeline_help", node=help_config(), provider="pipeline")
