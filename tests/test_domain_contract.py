@@ -26,7 +26,14 @@ import pytest
 from pipeline.domains import ConstraintSet, InstanceError, domain_names, load_domain
 from pipeline.domains.planar import PlanarScene
 from pipeline.environment import agree
-from pipeline.planning import PLANNERS, PlannerSettings, PlanResult, Status, make_planner
+from pipeline.planning import (
+    PLANNERS,
+    PlannerSettings,
+    PlanResult,
+    Status,
+    make_planner,
+    path_is_free,
+)
 from pipeline.planning.base import CAPABILITIES, capabilities
 from pipeline.planning.registry import planner_class
 from tests.replay import child_env, code_paths
@@ -293,5 +300,10 @@ def test_planner_plans_on_a_plain_robot_or_is_refused(planner):
     assert summary(a) == summary(b)
     assert a.feasible and np.allclose(a.path[0], start) and np.allclose(a.path[-1], goal)
     assert np.all(a.path >= robot.lower) and np.all(a.path <= robot.upper)
+    assert path_is_free(a.path, robot, settings.resolution)  # every state, not coarse-to-fine
+    assert 0 < a.checks <= settings.max_checks
+    tight = make_planner(PlannerSettings(name=planner, max_checks=25), type(robot))
+    walled = PlanarScene(np.array([[5.0, 5.0, 0.5, 9.0]]), 0.25, robot.lower, robot.upper)
+    assert tight.plan(walled, start, goal, seed=4).checks <= 25
     inside = chosen.plan(robot, start, np.array([5.0, 8.0]), seed=4)
     assert inside.status is Status.GOAL_IN_COLLISION
