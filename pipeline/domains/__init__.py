@@ -85,4 +85,4 @@ def load_domain(name: str, planner=None, **overrides) -> Domain:
 
 __all__ = ["DOMAINS", "ConstraintSet", "Domain", "Feature", "InstanceError", "RawResult",
            "RawSearch", "constraint_row", "domain_class", "domain_config", "domain_names",
-           "domain_schema", "finite_rows", "load_domain", "require"]
+           "domain_schema", "finite_rows", "has_yaml", "load_domain", "require"]
