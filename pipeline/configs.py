@@ -16,7 +16,7 @@ from typing import Any
 
 from omegaconf import MISSING, OmegaConf
 
-from pipeline.domains.schemas import DOMAIN_SCHEMAS
+from pipeline.domains import domain_names, domain_schema, has_yaml
 from pipeline.planning.registry import PlannerSettings
 from pipeline.yaml_configs import CONF_DIR, load_yaml_config, planner_settings
 
@@ -118,7 +118,7 @@ RAWPLANNER = "rawplanner"
 class EvaluateConfig:
     selectors: list[str] = field(
         default_factory=lambda: ["box", "eips", "static", "rand", "doo", "pembo", "oracle",
-                                 "fastest", "rawplanner"])
+                                 "fastest", RAWPLANNER])
     k: int | None = None  # tries per held-out instance; null = all m
     c: float = 1.96
     failure_rule: str = "magnitude"
@@ -173,8 +173,12 @@ def register_configs() -> None:
     cs.store(name="config_schema", node=Config)
     cs.store(group="planner", name="planner_schema", node=PlannerSettings)
     cs.store(group="cluster", name="cluster_schema", node=ClusterConfig)
-    for name, schema in DOMAIN_SCHEMAS.items():
+    for name in domain_names():
+        schema = domain_schema(name)
         cs.store(group="domain", name=f"{name}_schema", node=schema)
+        if not has_yaml(name):  # e.g. a plug-in's domain: its schema's defaults are the option
+            cs.store(group="domain", name=name, node=OmegaConf.merge(
+                OmegaConf.structured(schema), {"name": name}))
     cs.store(group="hydra/help", name="pipeline_help", node=help_config(), provider="pipeline")
 
 
@@ -184,8 +188,9 @@ APP_NAME = "box-pipeline"
 
 def choices(group: str) -> list[str]:
     """The options of a config group: its YAML files in ``conf/`` (schemas are not
-    options)."""
-    return sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
+    options), and for ``domain`` the installed plug-ins' domains."""
+    found = {p.stem for p in (CONF_DIR / group).glob("*.yaml")}
+    return sorted(found | set(domain_names()) if group == "domain" else found)
 
 
 def help_config() -> dict:

@@ -1,10 +1,12 @@
 """Domains and planners from other packages, found through Python entry points.
 
 A package adds a domain or a planner by declaring an entry point in one of the groups below
-(in its ``pyproject.toml``), whose value is ``"module:Class"``:
+(in its ``pyproject.toml``), whose value is ``"module:Class"``: for a domain its config
+schema, in a light module, whose ``domain_class`` names the Domain subclass
+(:mod:`pipeline.domains`); for a planner its class:
 
     [project.entry-points."box_planning.domains"]
-    shelf = "my_package.shelf:ShelfDomain"
+    shelf = "my_package.shelf_schema:ShelfConfig"
 
     [project.entry-points."box_planning.planners"]
     lazy_rrt = "my_package.lazy:LazyRRT"

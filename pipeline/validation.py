@@ -115,7 +115,7 @@ def _check_cluster(c: dict) -> None:
 
 def _check_planner_and_domain(c: dict) -> None:
     from pipeline import configs
-    from pipeline.domains import DOMAINS, domain_class
+    from pipeline.domains import domain_config, domain_names
 
     try:
         configs.planner_settings(c["planner"])
@@ -123,10 +123,11 @@ def _check_planner_and_domain(c: dict) -> None:
         raise ConfigError(str(exc)) from None
     domain = dict(c["domain"])
     name = domain.pop("name", None)
-    if name not in DOMAINS:
-        raise ConfigError(f"domain={name}: unknown domain; choose from {', '.join(DOMAINS)}")
+    if name not in domain_names():
+        raise ConfigError(f"domain={name}: unknown domain; choose from "
+                          f"{', '.join(domain_names())}")
     try:
-        configs.load_yaml_config("domain", name, domain_class(name).config_class, domain)
+        domain_config(name, domain)  # its schema only: no domain module, no simulator
     except (ValueError, TypeError) as exc:
         raise ConfigError(str(exc)) from None
 

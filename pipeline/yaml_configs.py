@@ -13,14 +13,19 @@ from pipeline.planning.registry import PlannerSettings
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 
 
-def load_yaml_config(group: str, name: str, schema: type, overrides: dict | None = None):
+def load_yaml_config(group: str, name: str, schema: type, overrides: dict | None = None,
+                     required: bool = True):
     """``conf/<group>/<name>.yaml`` checked against ``schema``, with ``overrides``, as a
-    ``schema`` instance."""
+    ``schema`` instance.  Without that file: refused, or (``required=False``, a plug-in
+    that has no YAML) the schema's defaults with ``overrides``."""
     path = CONF_DIR / group / f"{name}.yaml"
-    if not path.is_file():
+    if path.is_file():
+        raw = OmegaConf.load(path)
+        raw.pop("defaults", None)
+    elif required:
         raise ValueError(f"no {group} config {name!r}: {path} does not exist")
-    raw = OmegaConf.load(path)
-    raw.pop("defaults", None)
+    else:
+        raw = OmegaConf.create({})
     try:
         node = OmegaConf.merge(OmegaConf.structured(schema), raw, OmegaConf.create(overrides or {}))
         return OmegaConf.to_object(node)

@@ -112,23 +112,32 @@ def compose_all() -> dict[str, dict]:
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from pipeline.configs import CONF_DIR, choices, register_configs
+    from pipeline.configs import CONF_DIR, register_configs
 
     register_configs()
     out = {}
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base=None):
         out[""] = compose(config_name="config")
         for group in ("domain", "planner", "cluster"):
-            for option in choices(group):
+            for option in documented(group):
                 out[f"{group}={option}"] = compose(config_name="config",
                                                    overrides=[f"{group}={option}"])
     return {k: OmegaConf.to_container(v, resolve=False, enum_to_str=True,
                                       throw_on_missing=False) for k, v in out.items()}
 
 
+def documented(group: str) -> list[str]:
+    """The options of ``group`` this package ships (installed plug-ins' domains are not
+    documented here)."""
+    from pipeline.configs import choices
+    from pipeline.domains import DOMAINS
+
+    return [c for c in choices(group) if group != "domain" or c in DOMAINS]
+
+
 def generate() -> str:
-    from pipeline.configs import Config, PlannerSettings, choices
-    from pipeline.domains.schemas import DOMAIN_SCHEMAS
+    from pipeline.configs import Config, PlannerSettings
+    from pipeline.domains import domain_schema
 
     composed = compose_all()
     default = composed[""]
@@ -137,7 +146,7 @@ def generate() -> str:
     lines += table(rows(top, Config))
     lines += ["", "### What choosing another `planner` or `cluster` changes", ""]
     for group, schema in (("planner", PlannerSettings), ("cluster", Config)):
-        for option in choices(group):
+        for option in documented(group):
             cfg = composed[f"{group}={option}"]
             base, mine = ((default[group], cfg[group]) if group == "planner"
                           else ({"cluster": default["cluster"]}, {"cluster": cfg["cluster"]}))
@@ -151,12 +160,12 @@ def generate() -> str:
                 lines.append(f"- `{group}={option}`: " + ", ".join(
                     f"`{key}={value}`" for key, value, _ in changed))
     lines += [""]
-    for option in [default["domain"]["name"]] + [c for c in choices("domain")
+    for option in [default["domain"]["name"]] + [c for c in documented("domain")
                                                   if c != default["domain"]["name"]]:
         tree = composed[f"domain={option}"]["domain"]
         lines += [f"### `domain={option}`" + (" (the default)" if option ==
                                                   default["domain"]["name"] else ""), ""]
-        lines += table(rows(tree, DOMAIN_SCHEMAS[option], "domain."))
+        lines += table(rows(tree, domain_schema(option), "domain."))
         lines += [""]
     return "\n".join(lines).rstrip("\n") + "\n"
 

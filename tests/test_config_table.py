@@ -32,3 +32,13 @@ def test_the_table_holds_every_key_of_the_composed_config():
                 "report.c_grid", "solve.max_seconds", "progress", "domain.step_order",
                 "domain.raw_max_tries"):
         assert f"| `{key}` |" in block, key
+
+
+def test_a_stages_view_of_the_config_has_the_keys_of_the_config():
+    """StageContext.config's type (RunConfig) names every top-level key of Config."""
+    from dataclasses import fields
+
+    from pipeline.configs import Config
+    from pipeline.context import RunConfig
+
+    assert list(RunConfig.__annotations__) == [f.name for f in fields(Config)]

@@ -69,3 +69,16 @@ def test_config_files_point_at_schemas_that_exist():
     assert pointers
     for path, source, cls in pointers:
         assert f"class {cls}" in (ROOT / source).read_text(), f"{path}: {source}:{cls}"
+
+
+def test_domain_config_files_point_at_their_registered_schema():
+    """conf/domain/<name>.yaml names the schema the registry has for <name>."""
+    import re
+
+    from pipeline.domains import DOMAINS, domain_schema, has_yaml
+
+    for name in filter(has_yaml, DOMAINS):
+        text = (ROOT / "conf" / "domain" / f"{name}.yaml").read_text()
+        source, cls = re.search(r"Schema \(types, meaning\): (\S+):(\w+)", text).groups()
+        schema = domain_schema(name)
+        assert (source, cls) == (schema.__module__.replace(".", "/") + ".py", schema.__name__)

@@ -1,12 +1,16 @@
 """The contract every registered domain and planner keeps (docs/architecture.md), checked
 for each of them in the spirit of scikit-learn's ``parametrize_with_checks``: a new domain
-or planner registered in ``DOMAINS``/``PLANNERS`` is checked here without a new test.
+or planner registered in ``DOMAINS``/``PLANNERS``, or a domain of an installed plug-in
+package, is checked here without a new test (``pytest tests/test_domain_contract.py -k
+<name>`` checks one).
 
 Per (domain, planner): the registry either refuses the pair with its one message or the
 domain plans with it deterministically (across call order and across processes), refuses
 bad specs and constraints, reports statuses and failed steps the store can hold, renders,
-and extracts a usable constraint from RAWPLANNER's solution.  Per planner: it plans on a
-plain robot model, or is refused for it.
+and extracts a usable constraint from RAWPLANNER's solution; every feasible path, re-checked
+densely by the domain's exact robot model in a fresh scene (not by the planner's own
+checks), is collision-free, and no call reports more checks than its budget allows.  Per
+planner: it plans on a plain robot model, or is refused for it.
 """
 
 from __future__ import annotations
@@ -19,14 +23,22 @@ import sys
 import numpy as np
 import pytest
 
-from pipeline.domains import DOMAINS, ConstraintSet, InstanceError, load_domain
+from pipeline.domains import ConstraintSet, InstanceError, domain_names, load_domain
 from pipeline.domains.planar import PlanarScene
 from pipeline.environment import agree
-from pipeline.planning import PLANNERS, PlannerSettings, PlanResult, Status, make_planner
+from pipeline.planning import (
+    PLANNERS,
+    PlannerSettings,
+    PlanResult,
+    Status,
+    make_planner,
+    path_is_free,
+)
 from pipeline.planning.base import CAPABILITIES, capabilities
 from pipeline.planning.registry import planner_class
 from tests.replay import child_env, code_paths
 
+DOMAINS = domain_names()  # the built-in ones and the installed plug-ins'
 PAIRS = [(d, p) for d in DOMAINS for p in PLANNERS]
 ENTRIES = 2  # planning calls per check: pick_place and trajopt calls cost ~0.1-1 s each
 
@@ -121,6 +133,19 @@ def test_plans_are_deterministic_across_call_order(domain, planner):
     assert forward == backward[::-1]
 
 
+@pytest.mark.parametrize("domain,planner", PAIRS)
+def test_feasible_paths_recheck_free_and_checks_stay_in_budget(domain, planner):
+    """The planner contract (docs/architecture.md): a feasible path is collision-free when
+    every edge is re-checked by the exact checker, and checks <= max_checks (per call:
+    the domain's ``check_limit``, its budgets and its own checks together)."""
+    d = domain_or_skip(domain, planner)
+    for (spec, row, _), r in zip(calls(domain), planned(domain, planner), strict=True):
+        assert 0 <= r.checks <= d.check_limit(), (r.status, r.step)
+        if r.feasible:
+            rechecked = d.recheck(spec, row, r)
+            assert rechecked and all(rechecked.values()), rechecked
+
+
 PROCESS_CODE = """
 import json, sys
 import numpy as np
@@ -197,6 +222,7 @@ def test_raw_solutions_give_usable_constraints(domain, planner):
     if raw.plan.feasible:
         assert np.all(np.isfinite(raw.constraint))
         d.constraint(raw.constraint)  # accepted as θ
+        assert all(d.recheck(spec, raw.constraint, raw.plan).values())
     else:
         assert np.all(np.isnan(raw.constraint)) and raw.plan.step in d.steps
     rows = np.stack([raw.constraint, np.full(d.n_features, np.nan)])
@@ -274,5 +300,10 @@ def test_planner_plans_on_a_plain_robot_or_is_refused(planner):
     assert summary(a) == summary(b)
     assert a.feasible and np.allclose(a.path[0], start) and np.allclose(a.path[-1], goal)
     assert np.all(a.path >= robot.lower) and np.all(a.path <= robot.upper)
+    assert path_is_free(a.path, robot, settings.resolution)  # every state, not coarse-to-fine
+    assert 0 < a.checks <= settings.max_checks
+    tight = make_planner(PlannerSettings(name=planner, max_checks=25), type(robot))
+    walled = PlanarScene(np.array([[5.0, 5.0, 0.5, 9.0]]), 0.25, robot.lower, robot.upper)
+    assert tight.plan(walled, start, goal, seed=4).checks <= 25
     inside = chosen.plan(robot, start, np.array([5.0, 8.0]), seed=4)
     assert inside.status is Status.GOAL_IN_COLLISION

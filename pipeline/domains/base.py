@@ -71,15 +71,14 @@ class RawSearch:
 class Domain(abc.ABC):
     """A family of planning problems ω and their solution constraints θ.
 
-    Subclasses set ``name``, ``config_class`` (a dataclass, the schema of
-    ``conf/domain/<name>.yaml``), ``fixed_constraints`` (True when Θ is a fixed set,
+    Subclasses set ``name``, ``fixed_constraints`` (True when Θ is a fixed set,
     False when it is extracted from RAWPLANNER's solutions), ``steps``, ``theta_features``
     and ``length_units``, and get their planners from :meth:`planner_for` (never by the
-    planner's name).
+    planner's name).  A domain's config schema (a dataclass) is declared apart, in a module
+    that loads no simulator, and names the subclass (:mod:`pipeline.domains`).
     """
 
     name: ClassVar[str]
-    config_class: ClassVar[type]
     fixed_constraints: ClassVar[bool]
     #: the steps of one planning call, in order; a failed PlanResult names the one that
     #: failed in ``step`` (stored as its index in the ``step`` arrays of the store)
@@ -174,6 +173,20 @@ class Domain(abc.ABC):
     @abc.abstractmethod
     def _raw_search(self, instance, seed: int) -> RawSearch:
         """RAWPLANNER's search on a checked instance."""
+
+    @abc.abstractmethod
+    def recheck(self, instance, constraint, plan: PlanResult) -> dict[str, bool]:
+        """Re-check each motion of a feasible ``plan`` of π(instance, constraint) in a fresh
+        scene with the domain's exact robot model, every state at the resolution it was
+        planned at (:func:`pipeline.planning.path_is_free`): {motion: free}, plus any
+        other condition a solution must meet.  The contract suite's check that a planner
+        returns collision-free paths, independent of the checks the planner made."""
+
+    def check_limit(self) -> int:
+        """The most collision checks one planning call may report: one budget of
+        ``planner.max_checks`` shared by the call's motions (a domain whose steps check
+        more, such as IK solutions or further budgets, says how many)."""
+        return self.planner.max_checks
 
     @abc.abstractmethod
     def build_scene(self, instance):

@@ -31,7 +31,7 @@ from pipeline.domains.grasps import (
 from pipeline.domains.ik import solve_ik
 from pipeline.domains.schemas import GraspArmConfig
 from pipeline.domains.specs import parse_box, parse_obstacles, require
-from pipeline.planning import PlanResult
+from pipeline.planning import PlanResult, path_is_free
 from pipeline.sim import panda as P
 from pipeline.sim.world import add_box, camera_image, connect, save_png
 
@@ -99,7 +99,6 @@ class GraspArmScene:
 
 class GraspArmDomain(Domain):
     name = "grasp_arm"
-    config_class = GraspArmConfig
     fixed_constraints = True
     steps = ("ik", "arm_path")
     theta_features = (Feature("arm", "1", "which Panda grasps: 0 or 1"), *GRASP_FEATURES)
@@ -219,7 +218,20 @@ class GraspArmDomain(Domain):
                 return RawSearch(plan, g.features, tries, checks)
         return RawSearch(plan, None, tries, checks)
 
+    def check_limit(self) -> int:
+        """The arm path's budget and a check per IK solution tried."""
+        return self.planner.max_checks + self.config.ik_restarts
+
     # -- inspection ------------------------------------------------------------------------
+    def recheck(self, instance, constraint, plan: PlanResult) -> dict[str, bool]:
+        """θ's arm path home → pre-grasp, the other arm at home."""
+        scene = self.build_scene(instance)
+        try:
+            arm = scene.arms[self.constraint(constraint).arm]
+            return {"arm_path": path_is_free(plan.path, arm, self.planner.resolution)}
+        finally:
+            scene.close()
+
     def build_scene(self, instance) -> GraspArmScene:
         """A new scene (its own pybullet client) for inspection; close() it when done."""
         return GraspArmScene(self.check_instance(instance))

@@ -42,7 +42,7 @@ from pipeline.domains.mobile_world import (
 )
 from pipeline.domains.schemas import GraspBaseConfig
 from pipeline.domains.specs import parse_box, parse_obstacles, require
-from pipeline.planning import PlanResult, Status
+from pipeline.planning import PlanResult, Status, path_is_free
 from pipeline.sim import panda as P
 from pipeline.sim.mobile import UnladenArm
 
@@ -74,7 +74,6 @@ class BaseGrasp:
 
 class GraspBaseDomain(Domain):
     name = "grasp_base"
-    config_class = GraspBaseConfig
     fixed_constraints = False
     steps = STEPS
     theta_features = (Feature("base_x", "m", "base position x"),
@@ -204,6 +203,20 @@ class GraspBaseDomain(Domain):
         return RawSearch(plan, None if used is None else used.features, tries, checks)
 
     # -- inspection ------------------------------------------------------------------------
+    def check_limit(self) -> int:
+        """The base pose's check, one per IK solution tried and the arm path's budget."""
+        return 1 + self.config.ik_restarts + self.planner.max_checks
+
+    def recheck(self, instance, constraint, plan: PlanResult) -> dict[str, bool]:
+        """The arm path home → pre-grasp, the base parked at θ's pose."""
+        scene = self.build_scene(instance)
+        try:
+            scene.robot.set_base(self.constraint(constraint).pose)
+            return {"arm_path": path_is_free(plan.path, scene.robot.arm_check,
+                                             self.planner.resolution)}
+        finally:
+            scene.close()
+
     def build_scene(self, instance) -> MobileScene:
         """A new scene (its own pybullet client) for inspection; close() it when done."""
         inst = self.check_instance(instance)

@@ -18,7 +18,7 @@ import numpy as np
 from pipeline.domains.base import Domain, Feature, RawSearch, constraint_row
 from pipeline.domains.schemas import PlanarConfig
 from pipeline.domains.specs import InstanceError, finite_rows, require
-from pipeline.planning import PlanResult, Robot, Status, path_length
+from pipeline.planning import PlanResult, Robot, Status, path_is_free, path_length
 
 
 @dataclass(frozen=True)
@@ -60,7 +60,6 @@ class PlanarScene(Robot):
 
 class PlanarDomain(Domain):
     name = "planar"
-    config_class = PlanarConfig
     fixed_constraints = False
     steps = ("via_leg", "goal_leg")
     theta_features = (Feature("via_x", "m", "via point x"), Feature("via_y", "m", "via point y"))
@@ -133,6 +132,13 @@ class PlanarDomain(Domain):
             if plan.feasible:
                 return RawSearch(plan, via, tries, checks)
         return RawSearch(plan, None, tries, checks)
+
+    def recheck(self, instance, constraint, plan: PlanResult) -> dict[str, bool]:
+        """The path, and that it passes the via-point θ."""
+        via = self.constraint(constraint)
+        return {"path": path_is_free(plan.path, self.build_scene(instance),
+                                     self.planner.resolution),
+                "via": bool(np.any(np.all(np.isclose(plan.path, via), axis=1)))}
 
     def build_scene(self, instance) -> PlanarScene:
         return PlanarScene(self.check_instance(instance).boxes, self.config.robot_radius,

@@ -2,17 +2,23 @@
 by :func:`pipeline.domains.load_domain`.  Plain data, so that registering the pipeline's
 configs loads no domain (and no simulator).  Each schema checks its values when it is
 built (``__post_init__``, ValueError naming the key), so the up-front validation refuses
-a bad value before anything is written."""
+a bad value before anything is written.
+
+A schema is where its domain is declared: ``pipeline.domains.DOMAINS`` (and a plug-in's
+entry point) names the schema, and the schema's ``domain_class`` names the Domain subclass
+("module:Class"), imported only when the domain is used."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 
 @dataclass
 class PlanarConfig:
     """Schema of ``conf/domain/planar.yaml``."""
 
+    domain_class: ClassVar[str] = "pipeline.domains.planar:PlanarDomain"
     name: str = "planar"
     size: float = 10.0  # the room is [0, size]²
     robot_radius: float = 0.25
@@ -43,6 +49,7 @@ class PlanarConfig:
 class GraspArmConfig:
     """Schema of ``conf/domain/grasp_arm.yaml``."""
 
+    domain_class: ClassVar[str] = "pipeline.domains.grasp_arm:GraspArmDomain"
     name: str = "grasp_arm"
     obstacles_min: int = 0
     obstacles_max: int = 20
@@ -65,6 +72,7 @@ class GraspArmConfig:
 class GraspBaseConfig:
     """Schema of ``conf/domain/grasp_base.yaml``."""
 
+    domain_class: ClassVar[str] = "pipeline.domains.grasp_base:GraspBaseDomain"
     name: str = "grasp_base"
     obstacles: int = 20
     obstacle_size: list[float] = field(default_factory=lambda: [0.04, 0.10])  # edge, metres
@@ -86,6 +94,7 @@ class GraspBaseConfig:
 class PickPlaceConfig:
     """Schema of ``conf/domain/pick_place.yaml``."""
 
+    domain_class: ClassVar[str] = "pipeline.domains.pick_place:PickPlaceDomain"
     name: str = "pick_place"
     obstacles: int = 28
     obstacle_size: list[float] = field(default_factory=lambda: [0.05, 0.12])  # edge, metres
@@ -167,7 +176,3 @@ def _ik(method: str) -> None:
             raise ValueError("domain.ik=analytic needs the frankik package (pip install "
                              "frankik)")
 
-
-#: domain name -> schema (the names of pipeline.domains.DOMAINS)
-DOMAIN_SCHEMAS = {"planar": PlanarConfig, "grasp_arm": GraspArmConfig,
-                  "grasp_base": GraspBaseConfig, "pick_place": PickPlaceConfig}

@@ -15,14 +15,15 @@ from matplotlib.figure import Figure
 
 from box_core import curve_summary
 from box_core.stats import RATIO_INTERVAL_METHOD, mean_ci_columns
+from pipeline.configs import RAWPLANNER
 
 #: How selectors are named and coloured in every figure and table.
 LABELS = {"box": "BOX", "eips": "EIPS", "static": "STATIC", "rand": "RAND", "doo": "DOO",
           "pembo": "PEM-BO", "oracle": "ORACLE", "fastest": "FASTEST",
-          "rawplanner": "RAWPLANNER"}
+          RAWPLANNER: "RAWPLANNER"}
 COLOURS = {"box": "tab:red", "eips": "tab:orange", "static": "tab:blue", "rand": "tab:gray",
            "doo": "tab:green", "pembo": "tab:purple", "oracle": "magenta",
-           "fastest": "tab:cyan", "rawplanner": "tab:brown"}
+           "fastest": "tab:cyan", RAWPLANNER: "tab:brown"}
 
 #: Oracles see the held-out truth: no bars or curves of their own, only reference lines.
 ORACLES = ("oracle", "fastest")
@@ -110,7 +111,7 @@ def score_versus_time(results, out_dir: Path, formats) -> dict[str, Path]:
             curves[name], bands[name] = mean, (lo, hi)
         if res.raw_feasible.any():
             mean, lo, hi = mean_ci_columns(res.raw_curve()[rows])
-            curves["rawplanner"], bands["rawplanner"] = mean, (lo, hi)
+            curves[RAWPLANNER], bands[RAWPLANNER] = mean, (lo, hi)
         optimum = float(res.optimal_score[rows].mean())
         target = res.failure_value + OPTIMAL_SHARE * (optimum - res.failure_value)
         end = _axis_end(res, curves, target)

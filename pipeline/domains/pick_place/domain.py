@@ -48,7 +48,6 @@ from pipeline.sim.world import pose_matrix, quaternion
 
 class PickPlaceDomain(Domain):
     name = "pick_place"
-    config_class = PickPlaceConfig
     fixed_constraints = False
     steps = tuple(plan_steps.STEPS)
     theta_features = (
@@ -234,6 +233,12 @@ class PickPlaceDomain(Domain):
             return raw.raw_search(self, inst, seed)
         finally:
             self._scene.reset(inst)
+
+    def check_limit(self) -> int:
+        """Two arm paths' budgets, the base path's, one check per IK solution tried in the
+        place and pick IK, the placement's and the two base poses' checks."""
+        c = self.config
+        return 2 * self.planner.max_checks + c.base_max_checks + 2 * c.ik_restarts + 3
 
     # -- inspection ------------------------------------------------------------------------
     def recheck(self, instance, constraint, plan: PlanResult,
