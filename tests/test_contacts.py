@@ -91,3 +91,29 @@ def test_panda_answers_agree_with_a_client_without_history():
     assert 10 < sum(answers) < 140  # the walk touches the box and leaves it
     pb.disconnect(c)
     pb.disconnect(f)
+
+
+def test_box_pairs_are_confirmed_like_pybullets_box_test(scene):
+    """Rod poses around the table's top edge, each checked with no history (the rod moved
+    away first, so the pair and its manifold are gone): the separating-axis confirmation
+    equals pybullet's box-box contacts, where GJK (``getClosestPoints``), which rounds the
+    boxes' edges by the collision margin, calls some overlapping poses apart."""
+    client, rod = scene
+    rng = np.random.default_rng(0)
+    same = gjk_apart = overlapping = 0
+    for _ in range(400):
+        position = np.array(BESIDE) + rng.normal(0.0, [0.003, 0.05, 0.002])
+        turn = pb.getQuaternionFromEuler(rng.normal(0.0, 0.05, 3))
+        pb.resetBasePositionAndOrientation(rod, FAR, [0, 0, 0, 1], physicsClientId=client)
+        pb.performCollisionDetection(physicsClientId=client)
+        pb.resetBasePositionAndOrientation(rod, position.tolist(), turn, physicsClientId=client)
+        plain = contacts.cached_collides(client, rod)
+        exact = contacts.boxes_overlap(contacts.box_of(client, rod, -1),
+                                       contacts.box_of(client, 0, -1))
+        gjk = any(pt[8] < 0 for pt in pb.getClosestPoints(rod, 0, 0.0, physicsClientId=client))
+        same += plain == exact
+        overlapping += exact
+        gjk_apart += exact and not gjk
+    assert same == 400
+    assert 40 < overlapping < 360
+    assert gjk_apart > 0
