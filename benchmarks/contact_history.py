@@ -21,6 +21,7 @@ step, checks, length, score) between runs.
 
 Run: python benchmarks/contact_history.py [--only grasp_arm|grasp_base|pick_place]
          [--arm-instances 3] [--mobile-instances 10] [--pick-place-data entries.npz]
+     python benchmarks/contact_history.py --cost 400   (µs per check, plain and fresh)
 """
 
 from __future__ import annotations
@@ -192,16 +193,59 @@ def run_domain(name: str, args, tmp: Path) -> None:
     sys.stdout.flush()
 
 
+def cost(configurations: int, repeats: int = 5) -> None:
+    """µs per check of a Panda among boxes (self-collision on, base link ignored), the
+    plain check against :func:`pipeline.sim.contacts.collides`: each configuration
+    checked ``repeats`` times by each, alternating; medians over repeats, then over the
+    configurations, free and colliding apart."""
+    import time
+
+    from pipeline.sim import contacts
+    from pipeline.sim.panda import LOWER, UPPER, Panda
+    from pipeline.sim.world import add_box, connect
+
+    client = connect()
+    arm = Panda(client, [0.0, 0.0, 0.0])
+    for size, centre in [((0.3, 0.8, 0.4), (0.55, 0.0, 0.2)), ((0.8, 0.3, 0.6), (0.0, 0.6, 0.3)),
+                         ((2.0, 2.0, 0.02), (0.0, 0.0, -0.011))]:
+        add_box(client, size, centre)
+    not_base = lambda pt: pt[3] == -1  # noqa: E731
+    rng = np.random.default_rng(0)
+    times = {(method, hit): [] for method in ("plain", "fresh") for hit in (False, True)}
+    for _ in range(configurations):
+        q = rng.uniform(LOWER, UPPER)
+        arm.set(q)
+        hit = contacts.cached_collides(client, arm.body, not_base)
+        for method, check in (("plain", contacts.cached_collides), ("fresh", contacts.collides)):
+            spent = []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                arm.set(q)
+                check(client, arm.body, not_base)
+                spent.append(time.perf_counter() - t0)
+            times[method, hit].append(np.median(spent) * 1e6)
+    for hit in (False, True):
+        plain, fresh = np.median(times["plain", hit]), np.median(times["fresh", hit])
+        print(f"  {'colliding' if hit else 'free':<9} ({len(times['plain', hit])} "
+              f"configurations): plain {plain:.1f} µs, fresh {fresh:.1f} µs per check "
+              f"({fresh / plain:.2f}x)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--only", choices=("grasp_arm", "grasp_base", "pick_place"))
     ap.add_argument("--arm-instances", type=int, default=3)
     ap.add_argument("--mobile-instances", type=int, default=10)
     ap.add_argument("--pick-place-data", help="a bench_pick_place block (entries.npz)")
+    ap.add_argument("--cost", type=int, metavar="N",
+                    help="only time both checks on N random Panda configurations")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         child(json.loads(args.child))
+        return
+    if args.cost:
+        cost(args.cost)
         return
     names = [args.only] if args.only else ["grasp_arm", "grasp_base", "pick_place"]
     with tempfile.TemporaryDirectory(prefix="contact_history_") as tmp:
