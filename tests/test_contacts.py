@@ -117,3 +117,21 @@ def test_box_pairs_are_confirmed_like_pybullets_box_test(scene):
     assert same == 400
     assert 40 < overlapping < 360
     assert gjk_apart > 0
+
+
+def test_self_collisions_are_confirmed():
+    """Link pairs of one body are confirmed too: random arm configurations (far apart, so
+    no cached point survives from one to the next) get the plain answer, many of them
+    self-collisions."""
+    client = connect()
+    arm = Panda(client, [0.0, 0.0, 0.0])
+    not_base = lambda pt: pt[3] == -1  # noqa: E731
+    rng = np.random.default_rng(0)
+    hits = 0
+    for _ in range(300):
+        arm.set(rng.uniform(LOWER, UPPER))
+        fresh = contacts.collides(client, arm.body, not_base)
+        assert fresh == contacts.cached_collides(client, arm.body, not_base)
+        hits += fresh
+    assert hits > 20
+    pb.disconnect(client)
