@@ -31,7 +31,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import numpy as np
 import pybullet as pb
 
 #: a contact point as ``getContactPoints`` returns it -> whether the check ignores it
@@ -43,8 +42,9 @@ PARALLEL = 1e-9
 
 
 def box_of(client: int, body: int, link: int):
-    """(rotation 3 × 3, centre, half extents) of a body that is a single box (its base link,
-    no joints), or None for anything else."""
+    """(axes, centre, half extents) of a body that is a single box (its base link, no
+    joints): its three axes as unit 3-tuples in world coordinates; None for anything
+    else."""
     if link != -1 or pb.getNumJoints(body, physicsClientId=client):
         return None
     shapes = pb.getCollisionShapeData(body, -1, physicsClientId=client)
@@ -52,25 +52,37 @@ def box_of(client: int, body: int, link: int):
         return None
     position, orientation = pb.getBasePositionAndOrientation(body, physicsClientId=client)
     centre, turn = pb.multiplyTransforms(position, orientation, shapes[0][5], shapes[0][6])
-    R = np.asarray(pb.getMatrixFromQuaternion(turn)).reshape(3, 3)
-    return R, np.asarray(centre), np.asarray(shapes[0][3], float) / 2
+    m = pb.getMatrixFromQuaternion(turn)  # row-major: axis i is column i
+    axes = tuple((m[i], m[3 + i], m[6 + i]) for i in range(3))
+    return axes, centre, tuple(e / 2 for e in shapes[0][3])
+
+
+def _dot(u, v) -> float:
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
 
 
 def boxes_overlap(a, b) -> bool:
     """Whether two boxes (as :func:`box_of` gives them) overlap with positive depth: no
     separating axis among both boxes' face normals and the cross products of their edges
-    (touching is not overlapping, as for pybullet's box-box contacts)."""
-    (Ra, ca, ha), (Rb, cb, hb) = a, b
-    axes = [*Ra.T, *Rb.T]
-    for u in Ra.T:
-        for v in Rb.T:
-            n = np.cross(u, v)
-            length = np.linalg.norm(n)
+    (touching is not overlapping, as for pybullet's box-box contacts).  Plain floats: for
+    15 axes numpy's per-call overhead costs more than the arithmetic."""
+    (A, ca, ha), (B, cb, hb) = a, b
+    d = (cb[0] - ca[0], cb[1] - ca[1], cb[2] - ca[2])
+    axes = [*A, *B]
+    for u in A:
+        for v in B:
+            n = (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2],
+                 u[0] * v[1] - u[1] * v[0])
+            length = _dot(n, n) ** 0.5
             if length > PARALLEL:
-                axes.append(n / length)
-    axes = np.array(axes)
-    reach = np.abs(axes @ Ra) @ ha + np.abs(axes @ Rb) @ hb
-    return bool(np.all(np.abs(axes @ (cb - ca)) < reach))
+                axes.append((n[0] / length, n[1] / length, n[2] / length))
+    for n in axes:
+        reach = (ha[0] * abs(_dot(n, A[0])) + ha[1] * abs(_dot(n, A[1]))
+                 + ha[2] * abs(_dot(n, A[2])) + hb[0] * abs(_dot(n, B[0]))
+                 + hb[1] * abs(_dot(n, B[1])) + hb[2] * abs(_dot(n, B[2])))
+        if abs(_dot(n, d)) >= reach:
+            return False
+    return True
 
 
 def confirmed(client: int, body_a: int, link_a: int, body_b: int, link_b: int) -> bool:
