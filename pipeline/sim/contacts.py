@@ -4,9 +4,9 @@
 collision objects between calls.  At each call the pair's narrow phase adds the contacts it
 finds now, then ``refreshContactPoints`` moves the points already cached with the bodies
 (from their stored local points, distance measured along the *stored* normal) and drops
-only those that drifted beyond the pair's contact breaking threshold (about 2 % of the
-smaller shape's bounding radius; millimetres for Panda links, about a centimetre for a
-long rod).  After a teleport (``resetBasePositionAndOrientation``,
+only those that moved apart along that normal, or slid sideways, by more than the pair's
+contact breaking threshold (2 % of the smaller shape's bounding radius: millimetres for
+Panda links, 4 mm for a 40 cm rod).  After a teleport (``resetBasePositionAndOrientation``,
 ``resetJointStatesMultiDof``) a cached point can therefore still report a penetration
 where the shapes are apart: slide a box a few millimetres off the edge of the box it sank
 into and ``getContactPoints`` keeps reporting the old depth.  Which points are cached
