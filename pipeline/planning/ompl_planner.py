@@ -1,0 +1,47 @@
+"""``planner=ompl``: one of OMPL's geometric planners by name (``planner.algorithm``, one of
+:data:`pipeline.planning.ompl_adapter.ALGORITHMS`), its parameters passed through OMPL's
+ParamSet (``planner.params``, e.g. ``{goal_bias: 0.1}``), then rrt_connect's shortcutting
+(``planner.shortcut_attempts``; 0: none).  ``planner.range`` > 0 sets the ``range``
+parameter (of the algorithms that have one).
+
+Optimising planners (RRTstar, BITstar, ...) stop at their first exact solution: the
+problem's objective is path length with an infinite cost threshold, which the first
+solution satisfies.  So ``max_checks`` bounds the search for a path for every algorithm
+alike, and a call's figures depend on the count of checks only (module
+:mod:`pipeline.planning.ompl_adapter`).
+"""
+
+from __future__ import annotations
+
+import math
+
+from ompl import base as ob
+from ompl import geometric as og
+
+from pipeline.planning.ompl_adapter import OmplGeometric
+from pipeline.planning.settings import OmplSettings
+
+
+class OmplPlanner(OmplGeometric):
+    """``og.<settings.algorithm>`` with ``settings.params``."""
+
+    name = "ompl"
+    settings_class = OmplSettings
+
+    def make(self, si):
+        planner = getattr(og, self.settings.algorithm)(si)
+        params = planner.params()
+        values = dict(self.settings.params)
+        if self.settings.range > 0:
+            values.setdefault("range", self.settings.range)
+        for key, value in values.items():
+            text = str(value).lower() if isinstance(value, bool) else str(value)
+            if not params.hasParam(key) or not params.setParam(key, text):
+                raise ValueError(f"planner.params.{key}={value}: refused by OMPL's "
+                                 f"{self.settings.algorithm}")
+        return planner
+
+    def prepare(self, setup):
+        objective = ob.PathLengthOptimizationObjective(setup.getSpaceInformation())
+        objective.setCostThreshold(ob.Cost(math.inf))  # the first solution is enough
+        setup.setOptimizationObjective(objective)
