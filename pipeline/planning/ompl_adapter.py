@@ -42,9 +42,8 @@ from pipeline.planning.shortcut import shortcut
 #: checks each).  Optimising ones (RRTstar, BITstar, ...) stop at their first exact solution:
 #: the problem's objective is path length with an infinite cost threshold, so the budget
 #: bounds the search for a path, as for the others, and never a refinement.
-ALGORITHMS = ("RRTConnect", "RRT", "BiTRRT", "TRRT", "LazyRRT", "RRTstar", "InformedRRTstar",
-              "RRTsharp", "BITstar", "ABITstar", "KPIECE1", "BKPIECE1", "LBKPIECE1", "EST",
-              "BiEST", "ProjEST", "SBL", "STRIDE", "PDST", "FMT", "BFMT", "LBTRRT", "SST")
+ALGORITHMS = ("RRTConnect", "RRT", "RRTstar", "InformedRRTstar", "SORRTstar", "BITstar",
+              "AORRTC", "KPIECE1", "BKPIECE1", "LBKPIECE1", "FMT", "BFMT")
 
 #: OMPL geometric planners refused, with the reason (one line)
 REFUSED = {
@@ -67,19 +66,48 @@ def check_algorithm(algorithm: str, params: dict) -> None:
     if algorithm not in ALGORITHMS:
         raise ValueError(f"planner.algorithm={algorithm}: not one of OMPL's planners this "
                          f"pipeline accepts ({', '.join(ALGORITHMS)})")
-    if not params:
-        return
-    space = ob.RealVectorStateSpace(1)
-    bounds = ob.RealVectorBounds(1)
-    bounds.setLow(0.0)
-    bounds.setHigh(1.0)
-    space.setBounds(bounds)
-    with quiet_ompl():
-        names = set(getattr(og, algorithm)(ob.SpaceInformation(space)).params().getParamNames())
-    unknown = sorted(set(params) - names)
+    cls = getattr(og, algorithm)
+    unknown = sorted(k for k in params if k not in parameters(cls))
     if unknown:
         raise ValueError(f"planner.params: {algorithm} has no parameter "
-                         f"{', '.join(unknown)}; it has {', '.join(sorted(names))}")
+                         f"{', '.join(unknown)}; it has {', '.join(parameters(cls))}")
+
+
+def setter_name(param: str) -> str:
+    """The setter of an OMPL parameter: ``goal_bias`` -> ``setGoalBias`` (OMPL names its
+    ParamSet entries after its setters; this binding cannot return a ParamSet, so the
+    parameters are set through the setters)."""
+    return "set" + "".join(part[:1].upper() + part[1:] for part in param.split("_"))
+
+
+def parameters(cls) -> list[str]:
+    """The parameter names of an OMPL planner class (its setters with a getter)."""
+    out = []
+    for attr in dir(cls):
+        if (attr.startswith("set") and hasattr(cls, "get" + attr[3:]) and attr[3:4].isupper()
+                and not hasattr(ob.Planner, attr)):
+            name = attr[3:]
+            out.append("".join("_" + c.lower() if c.isupper() else c for c in name)[1:])
+    return sorted(out)
+
+
+def set_params(planner, params: dict) -> None:
+    """Set ``params`` (OMPL's parameter names -> values) on an OMPL planner, each value
+    converted to the type of the parameter's current value; ValueError naming the key when
+    one does not fit."""
+    for key, value in params.items():
+        setter = getattr(planner, setter_name(key), None)
+        getter = getattr(planner, "get" + setter_name(key)[3:], None)
+        if setter is None:
+            raise ValueError(f"planner.params.{key}: {planner.getName()} has no such parameter")
+        try:
+            kind = type(getter()) if callable(getter) else None
+            if kind is bool and isinstance(value, str):
+                value = {"true": True, "false": False}[value.lower()]
+            setter(kind(value) if kind in (bool, int, float) else value)
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"planner.params.{key}={value!r}: not a value "
+                             f"{planner.getName()} accepts") from None
 
 
 @contextlib.contextmanager

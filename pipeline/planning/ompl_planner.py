@@ -1,6 +1,7 @@
 """``planner=ompl``: one of OMPL's geometric planners by name (``planner.algorithm``, one of
-:data:`pipeline.planning.ompl_adapter.ALGORITHMS`), its parameters passed through OMPL's
-ParamSet (``planner.params``, e.g. ``{goal_bias: 0.1}``), then rrt_connect's shortcutting
+:data:`pipeline.planning.ompl_adapter.ALGORITHMS`), its parameters by OMPL's names
+(``planner.params``, e.g. ``{goal_bias: 0.1}``; set through the planner's setters, as
+OMPL's ParamSet does), then rrt_connect's shortcutting
 (``planner.shortcut_attempts``; 0: none).  ``planner.range`` > 0 sets the ``range``
 parameter (of the algorithms that have one).
 
@@ -18,7 +19,7 @@ import math
 from ompl import base as ob
 from ompl import geometric as og
 
-from pipeline.planning.ompl_adapter import OmplGeometric
+from pipeline.planning.ompl_adapter import OmplGeometric, set_params
 from pipeline.planning.settings import OmplSettings
 
 
@@ -30,15 +31,10 @@ class OmplPlanner(OmplGeometric):
 
     def make(self, si):
         planner = getattr(og, self.settings.algorithm)(si)
-        params = planner.params()
         values = dict(self.settings.params)
         if self.settings.range > 0:
             values.setdefault("range", self.settings.range)
-        for key, value in values.items():
-            text = str(value).lower() if isinstance(value, bool) else str(value)
-            if not params.hasParam(key) or not params.setParam(key, text):
-                raise ValueError(f"planner.params.{key}={value}: refused by OMPL's "
-                                 f"{self.settings.algorithm}")
+        set_params(planner, values)
         return planner
 
     def prepare(self, setup):

@@ -83,8 +83,8 @@ class OmplSettings(RRTConnectSettings):
     ``range`` > 0 sets the algorithm's ``range`` parameter (0: OMPL's default)."""
 
     name: str = "ompl"
-    algorithm: str = "RRTConnect"
-    params: dict[str, Any] = field(default_factory=dict)
+    algorithm: str = "RRTConnect"  # og.<algorithm>: RRT, RRTstar, BITstar, KPIECE1, ...
+    params: dict[str, Any] = field(default_factory=dict)  # OMPL's names, e.g. {goal_bias:0.1}
 
     def __post_init__(self):
         super().__post_init__()
@@ -101,7 +101,7 @@ class TrajOptSettings(PlannerSettings):
     trajopt_waypoints: int = 20  # T: configurations from start to goal, both included
     trajopt_margin: float = 0.02  # safety margin on signed distance, metres
     trajopt_penalty: float = 10.0  # initial hinge coefficient (x10 per penalty round)
-    trajopt_penalty_rounds: int = 4
+    trajopt_penalty_rounds: int = 4  # each multiplies the coefficient by 10
     trajopt_iterations: int = 30  # SQP iterations per call, over all rounds
     trajopt_trust_radius: float = 0.3  # initial trust region, radians per joint
 
