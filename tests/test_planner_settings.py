@@ -14,6 +14,7 @@ import tarfile
 import textwrap
 from pathlib import Path
 
+import numpy as np
 import pytest
 import zarr
 from hydra import compose, initialize_config_dir
@@ -229,3 +230,36 @@ def test_a_plugin_never_replaces_a_builtin_planner(plugin):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                             env=plugin, check=True).stdout.split()
     assert out == ["pipeline.planning.rrt_connect", "half_rrt"]
+
+
+def test_a_robot_model_brings_its_own_checker():
+    """``planner.collision=spheres`` asks the robot model for its faster checker (its
+    ``certified`` capability); a model without one is checked as it is."""
+    from pipeline.domains.planar import PlanarScene
+    from pipeline.planning.base import capabilities
+
+    class Faster(PlanarScene):
+        def certified(self):
+            return Counting(self)
+
+    class Counting(PlanarScene):
+        def __init__(self, model):
+            super().__init__(np.zeros((0, 4)), model.radius, model.lower, model.upper)
+            self.calls = 0
+
+        def check(self, states):
+            self.calls += 1
+            return super().check(states)
+
+    box = np.zeros((0, 4))
+    fast = Faster(box, 0.25, np.zeros(2), np.full(2, 10.0))
+    assert "certified" in capabilities(fast) and "certified" not in capabilities(PlanarScene)
+    spheres = RRTConnect(S.RRTConnectSettings(collision="spheres"))
+    budget = spheres.budget(fast)
+    assert isinstance(budget.robot, Counting)
+    assert spheres.plan(fast, np.ones(2), np.full(2, 9.0), seed=0, budget=budget).feasible
+    assert budget.robot.calls > 0
+    exact = RRTConnect(S.RRTConnectSettings(collision="exact"))
+    assert exact.budget(fast).robot is fast
+    plain = PlanarScene(box, 0.25, np.zeros(2), np.full(2, 10.0))
+    assert spheres.budget(plain).robot is plain
