@@ -17,8 +17,8 @@ the planner receive the same seeds whatever ran before in the process.  Everythi
 that is random here (shortcutting) draws from a numpy Generator seeded per call.  OMPL's
 log is silenced during a call (re-seeding logs an error by design) and restored after it,
 so importing or calling this module changes no global setting.  Planners that plan in a
-second thread (PRM's roadmap, the parallel ones) see a budget in an order no seed fixes, so
-they are refused (:data:`REFUSED`).
+second thread (PRM's roadmap) see a budget in an order no seed fixes, so they are refused
+(:data:`REFUSED`).
 """
 
 from __future__ import annotations
@@ -37,25 +37,20 @@ from pipeline.planning.result import PlanResult, Status, path_length
 from pipeline.planning.settings import RRTConnectSettings
 from pipeline.planning.shortcut import shortcut
 
-#: OMPL geometric planners (``og.<name>``) whose checks and paths are the same, call after
-#: call and process after process, for the same seed and budget (tests/test_ompl_planners.py
-#: checks each).  Optimising ones (RRTstar, BITstar, ...) stop at their first exact solution:
+#: OMPL geometric planners (``og.<name>``; those this binding exposes) whose checks and
+#: paths are the same, call after call and process after process, for the same seed and
+#: budget (tests/test_ompl_planners.py checks each).  Optimising ones (RRTstar, BITstar, ...) stop at their first exact solution:
 #: the problem's objective is path length with an infinite cost threshold, so the budget
 #: bounds the search for a path, as for the others, and never a refinement.
 ALGORITHMS = ("RRTConnect", "RRT", "RRTstar", "InformedRRTstar", "SORRTstar", "BITstar",
               "AORRTC", "KPIECE1", "BKPIECE1", "LBKPIECE1", "FMT", "BFMT")
 
-#: OMPL geometric planners refused, with the reason (one line)
-REFUSED = {
-    "PRM": "grows its roadmap in a second thread: its checks depend on thread timing",
-    "PRMstar": "grows its roadmap in a second thread: its checks depend on thread timing",
-    "LazyPRM": "not deterministic under a counted budget",
-    "LazyPRMstar": "not deterministic under a counted budget",
-    "SPARS": "grows its roadmap in a second thread: its checks depend on thread timing",
-    "SPARStwo": "grows its roadmap in a second thread: its checks depend on thread timing",
-    "pRRT": "plans in several threads: its checks depend on thread timing",
-    "pSBL": "plans in several threads: its checks depend on thread timing",
-}
+_THREADED = ("grows its roadmap in a second thread, whose checks call back into Python: their "
+             "order depends on thread timing (and here the call never returns)")
+
+#: OMPL geometric planners refused, with the reason (one line); tried: each hung, blocked,
+#: on its first call with a counted budget
+REFUSED = {"PRM": _THREADED, "PRMstar": _THREADED}
 
 
 def check_algorithm(algorithm: str, params: dict) -> None:
