@@ -45,8 +45,8 @@ from pipeline.planning.shortcut import shortcut
 ALGORITHMS = ("RRTConnect", "RRT", "RRTstar", "InformedRRTstar", "SORRTstar", "BITstar",
               "AORRTC", "KPIECE1", "BKPIECE1", "LBKPIECE1", "FMT", "BFMT")
 
-_THREADED = ("grows its roadmap in a second thread, whose checks call back into Python: their "
-             "order depends on thread timing (and here the call never returns)")
+_THREADED = ("grows its roadmap in a second thread, whose checks call back into Python: "
+             "their order depends on thread timing (and here the call never returns)")
 
 #: OMPL geometric planners refused, with the reason (one line); tried: each hung, blocked,
 #: on its first call with a counted budget
