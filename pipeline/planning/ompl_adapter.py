@@ -39,9 +39,10 @@ from pipeline.planning.shortcut import shortcut
 
 #: OMPL geometric planners (``og.<name>``; those this binding exposes) whose checks and
 #: paths are the same, call after call and process after process, for the same seed and
-#: budget (tests/test_ompl_planners.py checks each).  Optimising ones (RRTstar, BITstar, ...) stop at their first exact solution:
-#: the problem's objective is path length with an infinite cost threshold, so the budget
-#: bounds the search for a path, as for the others, and never a refinement.
+#: budget (tests/test_ompl_planners.py checks each).  Optimising ones (RRTstar, BITstar, ...)
+#: stop at their first exact solution (:mod:`pipeline.planning.ompl_planner`), except AORRTC,
+#: which spends the whole budget.  FMT and BFMT sample ``num_samples`` states (1000) before
+#: connecting any: they need a large budget or fewer samples.
 ALGORITHMS = ("RRTConnect", "RRT", "RRTstar", "InformedRRTstar", "SORRTstar", "BITstar",
               "AORRTC", "KPIECE1", "BKPIECE1", "LBKPIECE1", "FMT", "BFMT")
 
