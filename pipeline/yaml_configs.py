@@ -39,8 +39,11 @@ def load_structured(group: str, name: str, schema: type, overrides: dict | None 
 def planner_settings(planner=None) -> PlannerSettings:
     """The settings of a planner (an instance of its own settings class) from a name
     (``conf/planner/<name>.yaml``; a plug-in planner, which has no YAML, its schema's
-    defaults), a mapping of settings (with ``name``; default rrt_connect) or themselves."""
+    defaults), a mapping of settings (with ``name``; default rrt_connect; the keys of other
+    built-in planners in it are left out, as stores made before per-planner settings hold
+    them) or themselves."""
     from pipeline.planning.registry import settings_class
+    from pipeline.planning.settings import own_settings
 
     if planner is None:
         planner = "rrt_connect"
@@ -49,6 +52,8 @@ def planner_settings(planner=None) -> PlannerSettings:
     overrides = None if isinstance(planner, str) else dict(planner)
     name = planner if isinstance(planner, str) else planner.get("name", "rrt_connect")
     schema = settings_class(name)
+    if overrides is not None:
+        overrides = own_settings(schema, overrides)
     if not (CONF_DIR / "planner" / f"{name}.yaml").is_file():  # a plug-in's: its schema
         return load_structured("planner", name, schema, overrides)
     return load_yaml_config("planner", name, schema, overrides)

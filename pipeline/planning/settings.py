@@ -122,6 +122,16 @@ SETTINGS = {"rrt_connect": RRTConnectSettings, "ompl": OmplSettings,
             "trajopt": TrajOptSettings, "noop": NoopSettings}
 
 
+def own_settings(settings_class: type, mapping: dict) -> dict:
+    """``mapping`` (planner settings as a store's identity or a replay record holds them)
+    without the keys that other built-in planners declare and ``settings_class`` does not:
+    stores made before planners had a settings class each hold every planner's keys.  Any
+    other key is kept, so a typo is still refused."""
+    mine = set(keys_of(settings_class))
+    others = {k for cls in SETTINGS.values() for k in keys_of(cls)}
+    return {k: v for k, v in mapping.items() if k in mine or k not in others}
+
+
 def keys_of(settings_class: type) -> list[str]:
     """The keys a settings class declares, in order."""
     return [f.name for f in fields(settings_class)]
