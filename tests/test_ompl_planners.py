@@ -111,3 +111,9 @@ def test_a_refused_algorithm_is_one_line_and_exit_2(tmp_path):
 def test_a_budget_spent_before_the_goal_is_reported():
     res = results("KPIECE1", seeds=[0], max_checks=300)[0]
     assert res.status is Status.BUDGET_EXHAUSTED and res.checks == 300
+
+
+def test_an_unknown_parameter_on_the_command_line_is_one_line_and_exit_2(tmp_path):
+    res = pr.run(tmp_path / "s.zarr", "stage=generate", "planner=ompl",
+                 "planner.algorithm=RRT", "+planner.params.rewire_factor=1.0")
+    bad_input(res, "RRT has no parameter rewire_factor")

@@ -263,3 +263,12 @@ def test_a_robot_model_brings_its_own_checker():
     assert exact.budget(fast).robot is fast
     plain = PlanarScene(box, 0.25, np.zeros(2), np.full(2, 10.0))
     assert spheres.budget(plain).robot is plain
+
+
+def test_flat_settings_as_old_stores_record_them_still_make_a_domain():
+    from pipeline.domains import load_domain
+
+    domain = load_domain("planar", planner={"name": "rrt_connect", **OLD_PLANNER})
+    assert domain.planner == S.RRTConnectSettings()
+    with pytest.raises(ValueError, match="trajopt_waypoint"):  # a typo is still refused
+        load_domain("planar", planner={"name": "rrt_connect", "trajopt_waypoint": 3})

@@ -84,7 +84,8 @@ class OmplSettings(RRTConnectSettings):
 
     name: str = "ompl"
     algorithm: str = "RRTConnect"  # og.<algorithm>: RRT, RRTstar, BITstar, KPIECE1, ...
-    params: dict[str, Any] = field(default_factory=dict)  # OMPL's names, e.g. {goal_bias:0.1}
+    #: OMPL's names, e.g. +planner.params.goal_bias=0.1
+    params: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self):
         super().__post_init__()
