@@ -24,6 +24,7 @@ second thread (PRM's roadmap) see a budget in an order no seed fixes, so they ar
 from __future__ import annotations
 
 import contextlib
+import math
 import time
 
 import numpy as np
@@ -126,6 +127,15 @@ class EdgeValidator(ob.MotionValidator):
     def checkMotion(self, s1, s2):  # noqa: N802 (OMPL's name)
         d = self._dim  # a slice of a state is a list of its coordinates
         return self._budget.edge_free(np.array(s1[0:d]), np.array(s2[0:d]), self._res)
+
+
+def stop_at_first_solution(setup: og.SimpleSetup) -> None:
+    """Make an optimising planner stop at its first exact solution: path length with an
+    infinite cost threshold, which any solution satisfies (planners that do not optimise
+    ignore it)."""
+    objective = ob.PathLengthOptimizationObjective(setup.getSpaceInformation())
+    objective.setCostThreshold(ob.Cost(math.inf))
+    setup.setOptimizationObjective(objective)
 
 
 def ompl_seed(seed: int) -> int:

@@ -14,12 +14,9 @@ alike, and a call's figures depend on the count of checks only (module
 
 from __future__ import annotations
 
-import math
-
-from ompl import base as ob
 from ompl import geometric as og
 
-from pipeline.planning.ompl_adapter import OmplGeometric, set_params
+from pipeline.planning.ompl_adapter import OmplGeometric, set_params, stop_at_first_solution
 from pipeline.planning.settings import OmplSettings
 
 
@@ -38,6 +35,4 @@ class OmplPlanner(OmplGeometric):
         return planner
 
     def prepare(self, setup):
-        objective = ob.PathLengthOptimizationObjective(setup.getSpaceInformation())
-        objective.setCostThreshold(ob.Cost(math.inf))  # the first solution is enough
-        setup.setOptimizationObjective(objective)
+        stop_at_first_solution(setup)
