@@ -17,11 +17,12 @@ from typing import Any
 from omegaconf import MISSING, OmegaConf
 
 from pipeline.domains import domain_names, domain_schema, has_yaml
-from pipeline.planning.registry import PlannerSettings
+from pipeline.planning.settings import SETTINGS, PlannerSettings, keys_of
 from pipeline.yaml_configs import CONF_DIR, load_yaml_config, planner_settings
 
-__all__ = ["CONF_DIR", "Config", "PlannerSettings", "identity", "load_yaml_config",
-           "planner_settings", "register_configs"]
+__all__ = ["CONF_DIR", "Config", "PlannerSettings", "comparable", "differing_keys",
+           "identity", "load_yaml_config", "matching_identity", "planner_settings",
+           "register_configs"]
 
 
 class Stage(enum.Enum):
@@ -153,7 +154,7 @@ class Config:
     stage: Stage = Stage.generate
     seed: int = 0
     domain: Any = MISSING
-    planner: PlannerSettings = field(default_factory=PlannerSettings)
+    planner: Any = MISSING  # the chosen planner's settings (pipeline/planning/settings.py)
     cluster: ClusterConfig = field(default_factory=ClusterConfig)
     instances: InstancesConfig = field(default_factory=InstancesConfig)
     constraints: ConstraintsConfig = field(default_factory=ConstraintsConfig)
@@ -171,7 +172,10 @@ def register_configs() -> None:
 
     cs = ConfigStore.instance()
     cs.store(name="config_schema", node=Config)
-    cs.store(group="planner", name="planner_schema", node=PlannerSettings)
+    for name, schema in SETTINGS.items():
+        cs.store(group="planner", name=f"{name}_schema", node=schema)
+    for name, schema in plugin_planner_schemas().items():
+        cs.store(group="planner", name=name, node=schema)  # the option itself (no YAML)
     cs.store(group="cluster", name="cluster_schema", node=ClusterConfig)
     for name in domain_names():
         schema = domain_schema(name)
@@ -180,6 +184,16 @@ def register_configs() -> None:
             cs.store(group="domain", name=name, node=OmegaConf.merge(
                 OmegaConf.structured(schema), {"name": name}))
     cs.store(group="hydra/help", name="pipeline_help", node=help_config(), provider="pipeline")
+
+
+def plugin_planner_schemas() -> dict[str, type]:
+    """name -> settings class of each installed plug-in planner (entry-point group
+    ``box_planning.planners``; importing each one's module), whose name no built-in takes."""
+    from pipeline.planning.registry import settings_class
+    from pipeline.plugins import plugin_targets
+
+    return {name: settings_class(name) for name in plugin_targets("planner")
+            if name not in SETTINGS}
 
 
 #: The command's name in its help (the console script; ``python -m pipeline`` is the same).
@@ -193,10 +207,16 @@ def choices(group: str) -> list[str]:
     return sorted(found | set(domain_names()) if group == "domain" else found)
 
 
+def help_choices(group: str) -> list[str]:
+    """:func:`choices`, and for ``planner`` the installed plug-ins' names too."""
+    extra = sorted(plugin_planner_schemas()) if group == "planner" else []
+    return choices(group) + extra
+
+
 def help_config() -> dict:
     """``--help``: the command's own name and the real choices of each group (Hydra's
     default lists the schemas too)."""
-    groups = "\n".join(f"  {g}: {', '.join(choices(g))}" for g in ("domain", "planner",
+    groups = "\n".join(f"  {g}: {', '.join(help_choices(g))}" for g in ("domain", "planner",
                                                                       "cluster"))
     return {
         "app_name": APP_NAME,
@@ -228,11 +248,42 @@ def identity(cfg) -> dict:
         for part in key.split("."):
             node = node[part]
         out[key] = node
-    # the collision checker changes the cost of D, never its contents (pipeline.sim.fast_check)
-    out["planner"] = {k: v for k, v in out["planner"].items() if k != "collision"}
     for key, old in LATER_KEYS.items():
         _drop_if(out, key, old)
-    return out
+    return comparable(out)
+
+
+def comparable(ident: dict) -> dict:
+    """``ident`` (an identity, as :func:`identity` makes it or as a store holds it) with
+    its planner's settings only: the keys that planner's settings class declares, minus
+    ``collision`` (which changes the cost of D, never its contents: the robot model's
+    certified checks give the same answers).
+
+    Stores made before planners had a settings class each hold every planner's keys (an
+    rrt_connect store has ``planner.trajopt_*``); those keys never changed what that
+    planner computed, so dropping them here lets such a store match the identity of
+    today's config without rewriting it, and a key added to another planner later changes
+    no store of this one.  A planner that is not installed keeps all its keys."""
+    planner = ident.get("planner")
+    if not isinstance(planner, dict):
+        return ident
+    try:
+        from pipeline.planning.registry import settings_class
+
+        declared = set(keys_of(settings_class(planner.get("name"))))
+    except (ValueError, ImportError):
+        declared = set(planner)
+    kept = {k: v for k, v in planner.items() if k in declared and k != "collision"}
+    return {**ident, "planner": kept}
+
+
+def matching_identity(stored: dict | None, wanted: dict) -> dict:
+    """The identity a run uses for a store: ``stored`` when it is ``wanted`` once both are
+    :func:`comparable` (a store made before per-planner settings: it is kept as it is, so
+    the store is neither rewritten nor refused), else ``wanted``."""
+    if stored and stored != wanted and not differing_keys(stored, wanted):
+        return stored
+    return wanted
 
 
 #: Keys that change D, added to the schemas after stores had been made, each with the value
@@ -275,5 +326,6 @@ def flatten(tree, prefix: str = "") -> dict[str, Any]:
 
 
 def differing_keys(stored: dict, wanted: dict) -> list[str]:
-    a, b = flatten(stored), flatten(wanted)
+    """The keys in which two identities differ, once both are :func:`comparable`."""
+    a, b = flatten(comparable(stored)), flatten(comparable(wanted))
     return sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k))

@@ -121,6 +121,7 @@ class Run:
             return None
         check_is_ours(self.location)
         store = ScoreStore(self.location, read_only=True)
+        self._adopt(store.attrs.get("identity"))
         if store.attrs.get("identity") != self.identity:
             return None  # prepare() refuses it, or replaces it with store.mode=overwrite
         self.store = store
@@ -136,6 +137,9 @@ class Run:
                 check_is_ours(self.location)  # refuse before touching anything near it
             local.parent.mkdir(parents=True, exist_ok=True)
         lock = self._stack.enter_context(StoreLock(self.location))
+        if not self.location.is_empty():
+            check_is_ours(self.location)
+            self._adopt(ScoreStore(self.location, read_only=True).attrs.get("identity"))
         self.store = ScoreStore.prepare(
             self.location, self.identity, self.recorded_config(),
             overwrite=self.cfg.store.mode is configs.StoreMode.overwrite)
@@ -155,6 +159,13 @@ class Run:
             self.wrote = True
         self.writing = True
         return self.store
+
+    def _adopt(self, stored: dict | None) -> None:
+        """Take a store's identity as this run's when it is this run's once both are
+        comparable (a store made before per-planner settings holds other planners' keys:
+        :func:`pipeline.configs.comparable`), so the store resumes as it is."""
+        self.identity = configs.matching_identity(stored, self.identity)
+        self.identity_hash = configs.config_hash(self.identity)
 
     def recorded_config(self) -> dict:
         """The resolved config as the store records it (storage options may hold secrets:

@@ -8,7 +8,7 @@ from pathlib import Path
 from omegaconf import OmegaConf
 from omegaconf.errors import OmegaConfBaseException
 
-from pipeline.planning.registry import PlannerSettings
+from pipeline.planning.settings import PlannerSettings
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"
 
@@ -25,21 +25,40 @@ def load_yaml_config(group: str, name: str, schema: type, overrides: dict | None
     elif required:
         raise ValueError(f"no {group} config {name!r}: {path} does not exist")
     else:
-        raw = OmegaConf.create({})
+        raw = None
+    return load_structured(group, name, schema, overrides, raw)
+
+
+def load_structured(group: str, name: str, schema: type, overrides: dict | None = None,
+                    raw=None):
+    """``schema``'s defaults, then ``raw`` (a YAML file's contents) and ``overrides``, as a
+    ``schema`` instance (a ValueError of one line when a key or value does not fit)."""
     try:
-        node = OmegaConf.merge(OmegaConf.structured(schema), raw, OmegaConf.create(overrides or {}))
+        node = OmegaConf.merge(OmegaConf.structured(schema), raw or {},
+                               OmegaConf.create(overrides or {}))
         return OmegaConf.to_object(node)
     except OmegaConfBaseException as exc:
         raise ValueError(f"{group} config {name!r}: {exc}".splitlines()[0]) from None
 
 
 def planner_settings(planner=None) -> PlannerSettings:
-    """A PlannerSettings from a name (conf/planner/<name>.yaml), a mapping or itself."""
+    """The settings of a planner (an instance of its own settings class) from a name
+    (``conf/planner/<name>.yaml``; a plug-in planner, which has no YAML, its schema's
+    defaults), a mapping of settings (with ``name``; default rrt_connect; the keys of other
+    built-in planners in it are left out, as stores made before per-planner settings hold
+    them) or themselves."""
+    from pipeline.planning.registry import settings_class
+    from pipeline.planning.settings import own_settings
+
     if planner is None:
         planner = "rrt_connect"
     if isinstance(planner, PlannerSettings):
         return planner
-    if isinstance(planner, str):
-        return load_yaml_config("planner", planner, PlannerSettings)
-    return load_yaml_config("planner", planner.get("name", "rrt_connect"), PlannerSettings,
-                            dict(planner))
+    overrides = None if isinstance(planner, str) else dict(planner)
+    name = planner if isinstance(planner, str) else planner.get("name", "rrt_connect")
+    schema = settings_class(name)
+    if overrides is not None:
+        overrides = own_settings(schema, overrides)
+    if not (CONF_DIR / "planner" / f"{name}.yaml").is_file():  # a plug-in's: its schema
+        return load_structured("planner", name, schema, overrides)
+    return load_yaml_config("planner", name, schema, overrides)

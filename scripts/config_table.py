@@ -1,7 +1,7 @@
 """Write the table of every pipeline config key and its default into docs/config.md.
 
 The defaults live in one place, the schemas (``pipeline/configs.py``,
-``pipeline/planning/registry.py``, ``pipeline/domains/schemas.py``) as composed by Hydra with
+``pipeline/planning/settings.py``, ``pipeline/domains/schemas.py``) as composed by Hydra with
 ``conf/*.yaml``; this script composes them the way ``python -m pipeline`` does and writes the
 result between the markers of docs/config.md, with the comment each schema field carries in
 the source as its note.  ``tests/test_config_table.py`` checks that the committed table is
@@ -30,10 +30,20 @@ END = "<!-- END config table -->"
 sys.path.insert(0, str(ROOT))
 
 
-@cache
 def field_comments(cls: type) -> dict[str, str]:
-    """``{field: comment}`` for a dataclass: the comment on the field's line, else the
-    comment lines right above it."""
+    """``{field: comment}`` for a dataclass and the dataclasses it derives from (the
+    nearest class that declares a field gives its comment)."""
+    out: dict[str, str] = {}
+    for base in reversed(cls.__mro__):
+        if dataclasses.is_dataclass(base):
+            out.update(own_field_comments(base))
+    return out
+
+
+@cache
+def own_field_comments(cls: type) -> dict[str, str]:
+    """``{field: comment}`` for the fields a class declares: the comment on the field's
+    line, else the comment lines right above it."""
     source = Path(inspect.getsourcefile(cls)).read_text()
     comments: dict[int, str] = {}  # line -> comment
     alone: set[int] = set()  # lines that hold nothing but a comment
@@ -136,29 +146,57 @@ def documented(group: str) -> list[str]:
 
 
 def generate() -> str:
-    from pipeline.configs import Config, PlannerSettings
+    from pipeline.configs import Config, choices
     from pipeline.domains import domain_schema
+    from pipeline.planning.settings import SETTINGS
 
     composed = compose_all()
     default = composed[""]
     lines = ["### Every run (`domain`, `planner` and `cluster` at their defaults)", ""]
-    top = {k: v for k, v in default.items() if k != "domain"}
-    lines += table(rows(top, Config))
+    planner = default["planner"]
+    every = []
+    for key, value in default.items():
+        if key == "planner":  # the default planner's own schema
+            every += rows(planner, SETTINGS[planner["name"]], "planner.")
+        elif key != "domain":
+            every += rows({key: value}, Config)
+    lines += table(every)
     lines += ["", "### What choosing another `planner` or `cluster` changes", ""]
-    for group, schema in (("planner", PlannerSettings), ("cluster", Config)):
-        for option in documented(group):
-            cfg = composed[f"{group}={option}"]
-            base, mine = ((default[group], cfg[group]) if group == "planner"
-                          else ({"cluster": default["cluster"]}, {"cluster": cfg["cluster"]}))
-            prefix = "planner." if group == "planner" else ""
-            changed = [r for r, b in zip(rows(mine, schema, prefix), rows(base, schema, prefix),
-                                         strict=True) if r[1] != b[1]]
-            if not changed:
-                what = "the defaults above" if cfg == default else "no key's default"
-                lines.append(f"- `{group}={option}`: {what}")
-            else:
-                lines.append(f"- `{group}={option}`: " + ", ".join(
-                    f"`{key}={value}`" for key, value, _ in changed))
+    for option in choices("planner"):
+        mine = composed[f"planner={option}"]["planner"]
+        if mine == planner:
+            lines.append(f"- `planner={option}`: the defaults above")
+            continue
+        base = {key: value for key, value, _ in
+                rows(planner, SETTINGS[planner["name"]], "planner.")}
+        own = rows(mine, SETTINGS[option], "planner.")
+        changed = [f"`{key}={value}`" for key, value, _ in own if base.get(key, value) != value]
+        added = [f"`{key}`" for key, _, _ in own if key not in base]
+        gone = [f"`{key}`" for key in base if key[len("planner."):] not in mine]
+        lines.append(f"- `planner={option}`: " + "; ".join(
+            [", ".join(changed)] + ([f"its own keys {', '.join(added)} (below)"] if added
+                                    else []) + ([f"no {', '.join(gone)}"] if gone else [])))
+    for option in choices("cluster"):
+        cfg = composed[f"cluster={option}"]
+        base, mine = {"cluster": default["cluster"]}, {"cluster": cfg["cluster"]}
+        changed = [r for r, b in zip(rows(mine, Config), rows(base, Config), strict=True)
+                   if r[1] != b[1]]
+        if not changed:
+            what = "the defaults above" if cfg == default else "no key's default"
+            lines.append(f"- `cluster={option}`: {what}")
+        else:
+            lines.append(f"- `cluster={option}`: " + ", ".join(
+                f"`{key}={value}`" for key, value, _ in changed))
+    extra = sorted({key for option in choices("planner")
+                    for key in composed[f"planner={option}"]["planner"]} - set(planner))
+    if extra:
+        lines += ["", "Keys of the other planners (`planner=<name>` first):", ""]
+        notes = []
+        for option in choices("planner"):
+            mine = composed[f"planner={option}"]["planner"]
+            notes += [r for r in rows(mine, SETTINGS[option], "planner.")
+                      if r[0][len("planner."):] in extra and r not in notes]
+        lines += table(notes)
     lines += [""]
     for option in [default["domain"]["name"]] + [c for c in documented("domain")
                                                   if c != default["domain"]["name"]]:

@@ -138,7 +138,7 @@ def test_pipeline_help_names_the_command_and_lists_only_real_choices(command):
     res = subprocess.run([*args, "--help"], capture_output=True, text=True, check=True)
     assert res.stdout.startswith("box-pipeline (python -m pipeline)")
     assert "domain: grasp_arm, grasp_base, pick_place, planar" in res.stdout
-    assert "planner: noop, rrt_connect, trajopt" in res.stdout
+    assert "planner: noop, ompl, rrt_connect, trajopt" in res.stdout
     assert "_schema" not in res.stdout and "powered by Hydra" not in res.stdout
 
 
@@ -172,9 +172,12 @@ ask "box-pipeline domain=planar domain.rob"
                          cwd=tmp_path, check=True, timeout=600)
     registered, domains, planners, top, keys = res.stdout.splitlines()
     assert registered.endswith("-F hydra_bash_completion box-pipeline")
-    assert domains.split() == [f"domain={d}" for d in ("grasp_arm", "grasp_base", "pick_place",
-                                                        "planar")]
-    assert planners.split() == ["planner=noop", "planner=rrt_connect", "planner=trajopt"]
+    from pipeline.plugins import plugin_targets  # installed plug-in domains are offered too
+
+    assert domains.split() == [f"domain={d}" for d in sorted(
+        {"grasp_arm", "grasp_base", "pick_place", "planar", *plugin_targets("domain")})]
+    assert planners.split() == ["planner=noop", "planner=ompl", "planner=rrt_connect",
+                                "planner=trajopt"]
     assert {"stage=", "domain=", "store.", "cluster.", "progress="} <= set(top.split())
     assert keys == "domain.robot_radius="
     fish = subprocess.run(["box-pipeline", "-sc", "query=fish"], capture_output=True,

@@ -53,3 +53,20 @@ print(json.dumps([str(ou.getLogLevel()), "matplotlib.pyplot" in sys.modules,
     level, pyplot, feasible = json.loads(out.stdout.strip().splitlines()[-1])
     assert level.endswith("LOG_WARN") and not pyplot and feasible
     assert "Error" not in out.stderr and "Info" not in out.stderr, out.stderr
+
+
+def test_no_planning_module_imports_the_simulator():
+    """The validity checker belongs to the robot model (issue 25, item 3): planning modules
+    ask the model for its checkers and never import ``pipeline.sim``, even in a function."""
+    import ast
+    from pathlib import Path
+
+    import pipeline.planning
+
+    found = []
+    for path in Path(pipeline.planning.__file__).parent.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            found += [f"{path.name}: {n}" for n in names if n.startswith("pipeline.sim")]
+    assert found == []

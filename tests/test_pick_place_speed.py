@@ -16,7 +16,7 @@ from scipy.optimize import nnls
 from pipeline import worker
 from pipeline.domains import load_domain
 from pipeline.planning.base import Robot, check_order, interpolate
-from pipeline.planning.rrt_connect import _Pairs
+from pipeline.planning.shortcut import Pairs as _Pairs
 from pipeline.sim import collide
 from pipeline.sim import fast_check as FC
 from pipeline.sim import panda as P

@@ -1,12 +1,14 @@
 """Motion planning (docs/architecture.md): results and statuses, the base every planner
 and robot share (robot model, checks, budget), the planner interface, one module per
-planner (``rrt_connect``, ``trajopt``, ``noop``) and the registry.  Importing this package
+planner (``rrt_connect``, ``ompl``, ``trajopt``, ``noop``; the OMPL ones share
+``ompl_adapter``), their settings (``settings``) and the registry.  Importing this package
 loads no planner (and so neither OMPL nor scipy's optimisers)."""
 
 from pipeline.planning.base import Budget, Robot, RobotModel, interpolate, path_is_free
 from pipeline.planning.interface import Planner
-from pipeline.planning.registry import PLANNERS, PlannerSettings, make_planner
+from pipeline.planning.registry import PLANNERS, make_planner
 from pipeline.planning.result import PlanResult, Status, path_length
+from pipeline.planning.settings import PlannerSettings
 
 __all__ = ["PLANNERS", "Budget", "PlanResult", "Planner", "PlannerSettings", "Robot",
            "RobotModel", "Status", "interpolate", "make_planner", "path_is_free",

@@ -3,9 +3,12 @@ collision checks charged to a counted budget, and straight-line interpolation.
 
 A robot model (:class:`RobotModel`) is the whole contract between a domain's simulator and
 a planner: joint limits ``lower``/``upper``, ``check(states)`` and ``check_motion(a, b,
-resolution, limit)``, and optionally ``distance_model(query)`` (signed distances and their
-gradients, for optimising planners).  Planners call nothing else, so a faster collision
-checker replaces a robot's ``check``/``check_motion`` and every planner uses it.  See
+resolution, limit)``, and optionally (:data:`CAPABILITIES`) ``distance_model(query)``
+(signed distances and their gradients, for optimising planners), ``certified()`` (the same
+model with faster checks that give the same answers and counts) and
+``bounded_distance_model(query)`` (the same distances, computed faster).  Planners call
+nothing else: the validity checker belongs to the robot model (as in OMPL, to the space
+information), so a new robot model brings its own and no planner changes.  See
 docs/architecture.md.
 
 Budget.  A planning call may check at most ``limit`` configurations.  Once the budget is
@@ -28,8 +31,12 @@ import numpy as np
 #: distance at configuration q, and their gradients (k, dof).
 DistanceModel = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
-#: Optional robot capabilities, by the method that provides each.
-CAPABILITIES = {"distances": "distance_model"}
+#: Optional robot capabilities, by the method that provides each: signed distances
+#: (``distance_model(query)``), checks with the same answers and counts made faster
+#: (``certified()``, for ``planner.collision=spheres``) and the same distances made faster
+#: (``bounded_distance_model(query)``).
+CAPABILITIES = {"distances": "distance_model", "certified": "certified",
+                "bounded_distances": "bounded_distance_model"}
 
 
 @runtime_checkable
@@ -53,6 +60,21 @@ def capabilities(robot) -> frozenset[str]:
     """The optional capabilities a robot (an instance or a class) provides."""
     return frozenset(c for c, method in CAPABILITIES.items()
                      if callable(getattr(robot, method, None)))
+
+
+def certified(robot):
+    """``robot`` with its faster checks of the same answers (its ``certified``
+    capability), or ``robot`` itself when it has none.  Call it when a planning call
+    starts: such a model reads the world when it is made."""
+    make = getattr(robot, "certified", None)
+    return make() if callable(make) else robot
+
+
+def fast_distance_model(robot, query: float) -> DistanceModel:
+    """``robot.distance_model(query)``, computed the faster way when the robot offers one
+    (its ``bounded_distances`` capability; the same numbers)."""
+    make = getattr(robot, "bounded_distance_model", None)
+    return make(query) if callable(make) else robot.distance_model(query)
 
 
 class Robot:

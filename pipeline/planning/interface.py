@@ -4,40 +4,41 @@ configurations per call, a :class:`PlanResult` out.  See docs/architecture.md.""
 from __future__ import annotations
 
 import abc
-from typing import TYPE_CHECKING, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
-from pipeline.planning.base import Budget, RobotModel
+from pipeline.planning.base import Budget, RobotModel, certified
 from pipeline.planning.result import PlanResult
-
-if TYPE_CHECKING:
-    from pipeline.planning.registry import PlannerSettings
+from pipeline.planning.settings import PlannerSettings, convert
 
 
 class Planner(abc.ABC):
-    """One motion planner.  Subclasses set ``name`` and ``requires`` (the optional robot
-    capabilities of :data:`pipeline.planning.base.CAPABILITIES` they need; the registry
-    refuses robots that lack one) and implement :meth:`plan`."""
+    """One motion planner.  Subclasses set ``name``, ``settings_class`` (their settings: a
+    dataclass derived from :class:`~pipeline.planning.settings.PlannerSettings`, the
+    schema of ``planner.*``) and ``requires`` (the optional robot capabilities of
+    :data:`pipeline.planning.base.CAPABILITIES` they need; the registry refuses robots
+    that lack one) and implement :meth:`plan`."""
 
     name: ClassVar[str]
+    settings_class: ClassVar[type[PlannerSettings]] = PlannerSettings
     requires: ClassVar[frozenset[str]] = frozenset()
     #: True for a planner that plans nothing: domains record every score entry as skipped
     #: and leave RAWPLANNER (which needs real solutions) to ``stand_in``
     plans_nothing: ClassVar[bool] = False
     stand_in: ClassVar[str | None] = None
 
-    def __init__(self, settings: PlannerSettings):
-        self.settings = settings
+    def __init__(self, settings: PlannerSettings | None = None):
+        """``settings``: an instance of ``settings_class`` (other settings give their
+        common keys and the class's defaults for the rest; None: all defaults)."""
+        self.settings = convert(settings or self.settings_class(), self.settings_class)
 
     def budget(self, robot: RobotModel) -> Budget:
         """A check budget for one call, to share between the motions of a multi-leg call;
         make it once the scene is set for the call (``planner.collision=spheres`` reads
         the world now)."""
         if getattr(self.settings, "collision", "exact") == "spheres":
-            from pipeline.sim.fast_check import certified
-
-            robot = certified(robot)
+            robot = certified(robot)  # the robot's faster checks (same answers), if any
         return Budget(robot, self.settings.max_checks, self.settings.wall_cap_s)
 
     @abc.abstractmethod

@@ -24,9 +24,10 @@ Initialisation is the straight line in joint space, as in TrajOpt; nothing is ra
 result is a function of the inputs alone.  The waypoints are only checked at the waypoints
 (no swept volumes): the caller re-checks the result densely before calling it feasible.
 
-Cost (issue 27, item 3).  With ``planner.collision=spheres`` (the default) pybullet is asked
-for distances only to bodies a sphere bound cannot rule out (:mod:`pipeline.sim.fast_distance`)
-and the dense re-check runs the sphere pre-check (:mod:`pipeline.sim.fast_check`); the dual
+Cost (issue 27, item 3).  With ``planner.collision=spheres`` (the default) the robot model's
+faster distances and checks are used where it offers them (its ``bounded_distances`` and
+``certified`` capabilities: for the Panda, pybullet asked only about bodies a sphere bound
+cannot rule out, and a sphere pre-check for the dense re-check); the dual
 is solved by scipy's L-BFGS-B (:func:`box_lbfgsb`), and the operators of the cost are made
 once per size.  None of this changes a bit of a result: ``collision=exact`` and the code
 before give the same statuses, checks and paths (tests/test_trajopt.py,
@@ -43,10 +44,11 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import minimize
 
-from pipeline.planning.base import DistanceModel, recheck
+from pipeline.planning.base import DistanceModel, certified, fast_distance_model, recheck
 from pipeline.planning.blas import single_thread
 from pipeline.planning.interface import Planner
 from pipeline.planning.result import PlanResult, Status, path_length
+from pipeline.planning.settings import TrajOptSettings
 
 #: Initial weight of the proximal term rho/2 |z - z0|^2 that, with the per-joint step limit,
 #: keeps each step where the linearisation holds (halved after a good step, x4 after a bad).
@@ -58,13 +60,16 @@ SLACK = 1e-6
 
 @dataclass(frozen=True)
 class TrajOptOptions:
-    waypoints: int = 20
-    margin: float = 0.02  # safety margin on signed distance, metres
-    penalty: float = 10.0  # initial hinge coefficient mu
+    """The optimiser's options; those a user sets default to the ``trajopt_*`` keys of
+    :class:`~pipeline.planning.settings.TrajOptSettings` (declared there only)."""
+
+    waypoints: int = TrajOptSettings.trajopt_waypoints
+    margin: float = TrajOptSettings.trajopt_margin  # safety margin on signed distance, m
+    penalty: float = TrajOptSettings.trajopt_penalty  # initial hinge coefficient mu
     penalty_scale: float = 10.0
-    penalty_rounds: int = 4
-    iterations: int = 30  # SQP iterations in total, over all rounds
-    trust_radius: float = 0.3  # initial trust region, radians per joint
+    penalty_rounds: int = TrajOptSettings.trajopt_penalty_rounds
+    iterations: int = TrajOptSettings.trajopt_iterations  # SQP iterations, over all rounds
+    trust_radius: float = TrajOptSettings.trajopt_trust_radius  # radians per joint
     min_trust: float = 1e-3
     tolerance: float = 1e-4  # stop a round when the model predicts less improvement
 
@@ -269,9 +274,9 @@ def _optimise(start, goal, lower, upper, contacts, opts, deadline) -> TrajOptRes
 QUERY_BUFFER = 0.03
 
 
-def options(settings) -> TrajOptOptions:
+def options(settings: TrajOptSettings) -> TrajOptOptions:
     """TrajOpt's options from the ``trajopt_*`` planner settings (checked by
-    PlannerSettings)."""
+    TrajOptSettings)."""
     s = settings
     return TrajOptOptions(waypoints=s.trajopt_waypoints, margin=s.trajopt_margin,
                           penalty=s.trajopt_penalty, penalty_rounds=s.trajopt_penalty_rounds,
@@ -289,11 +294,12 @@ class TrajOpt(Planner):
     """
 
     name = "trajopt"
+    settings_class = TrajOptSettings
     requires = frozenset({"distances"})
 
-    def __init__(self, settings):
+    def __init__(self, settings=None):
         super().__init__(settings)
-        self.options = options(settings)
+        self.options = options(self.settings)
 
     def plan(self, robot, start, goal, seed: int = 0, budget=None) -> PlanResult:
         opts = self.options
@@ -315,15 +321,12 @@ class TrajOpt(Planner):
     def models(self, robot, query: float):
         """(the robot model that re-checks the result, the distance model), made once the
         scene is set for the call and before its wall-clock cap starts.  With
-        ``planner.collision=spheres`` (the default) the re-check runs the sphere
-        pre-check (:func:`pipeline.sim.fast_check.certified`) and pybullet is asked for
-        distances only to bodies that may be within ``query``
-        (:func:`pipeline.sim.fast_distance.bounded`); both give the answers of
+        ``planner.collision=spheres`` (the default) they are the robot model's faster
+        ones where it offers them (its ``certified`` and ``bounded_distances``
+        capabilities: for the Panda, the sphere pre-check and pybullet asked for distances
+        only to bodies that may be within ``query``); both give the answers of
         ``collision=exact`` (pybullet everywhere), bit for bit, so the setting changes
         only the cost."""
         if getattr(self.settings, "collision", "exact") != "spheres":
             return robot, robot.distance_model(query)
-        from pipeline.sim.fast_check import certified
-        from pipeline.sim.fast_distance import bounded
-
-        return certified(robot), bounded(robot, query)
+        return certified(robot), fast_distance_model(robot, query)

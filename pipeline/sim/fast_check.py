@@ -808,6 +808,9 @@ class CertifiedRobot(Robot):
             return super().check_motion(a, b, resolution, limit)  # the model's own order
         return self.checker.motion(a, b, resolution, limit)
 
+    def certified(self) -> CertifiedRobot:
+        return self  # already
+
     def __getattr__(self, name):  # optional capabilities (distance_model) are the model's
         return getattr(self.model, name)
 
@@ -841,29 +844,38 @@ def compile_kernels() -> None:
 
 
 def certified(model):
-    """``model`` (a robot model) with sphere-certified checks, or ``model`` itself when it
-    is not one this module knows.  Call it when a planning call starts: the world is read
+    """``model`` (a robot model) with sphere-certified checks: its own ``certified()``
+    (the robot model's capability, built by one of the functions below), or ``model``
+    itself when it has none.  Call it when a planning call starts: the world is read
     now."""
-    from pipeline.sim.mobile import MobileArm, MobileBase
-    from pipeline.sim.panda import Panda
+    make = getattr(model, "certified", None)
+    return make() if callable(make) else model
 
+
+def certified_panda(model) -> CertifiedRobot:
+    """A fixed Panda's (:class:`pipeline.sim.panda.Panda`) sphere-certified model."""
     compile_kernels()
-    if isinstance(model, Panda):
-        checker = arm_checker(model.client, model.body, model.ignored_pairs, model.collides_at)
-    elif isinstance(model, MobileArm):
-        r = model.robot
-        checker = arm_checker(r.client, r.body, r.arm.ignored_pairs, r.arm_collides,
-                              held=_held(r, hand=True), hand_links=r.hand_links,
-                              fixed_robot=(r.platform,), world_key=_world_key(r))
-    elif isinstance(model, MobileBase):
-        r = model.robot
-        r.set_base(r.pose)  # the held object where base checks will put it
-        checker = base_checker(r.client, r.body, r.platform, r.base_frame(), model.psi_scale,
-                               model.collides, _internal_free(r), held=_held(r, hand=False),
-                               world_key=_world_key(r))
-    else:
-        return model
-    return CertifiedRobot(model, checker)
+    return CertifiedRobot(model, arm_checker(model.client, model.body, model.ignored_pairs,
+                                             model.collides_at))
+
+
+def certified_mobile_arm(model) -> CertifiedRobot:
+    """A mobile Panda's arm's (:class:`pipeline.sim.mobile.MobileArm`)."""
+    compile_kernels()
+    r = model.robot
+    return CertifiedRobot(model, arm_checker(
+        r.client, r.body, r.arm.ignored_pairs, r.arm_collides, held=_held(r, hand=True),
+        hand_links=r.hand_links, fixed_robot=(r.platform,), world_key=_world_key(r)))
+
+
+def certified_mobile_base(model) -> CertifiedRobot:
+    """A mobile Panda's base's (:class:`pipeline.sim.mobile.MobileBase`)."""
+    compile_kernels()
+    r = model.robot
+    r.set_base(r.pose)  # the held object where base checks will put it
+    return CertifiedRobot(model, base_checker(
+        r.client, r.body, r.platform, r.base_frame(), model.psi_scale, model.collides,
+        _internal_free(r), held=_held(r, hand=False), world_key=_world_key(r)))
 
 
 def _shape_key(client: int, body: int) -> tuple:

@@ -237,23 +237,10 @@ class BoundedDistances:
         return self.many(np.asarray(q, float)[None])[0]
 
 
-def _panda_of(model):
-    """The Panda whose ``distances`` give ``model``'s distance model, or None."""
-    from pipeline.sim.mobile import UnladenArm
-    from pipeline.sim.panda import Panda
-
-    if type(model) is Panda:
-        return model
-    if type(model) is UnladenArm:  # its distance model is its arm's
-        return model.robot.arm
-    return None
-
-
 def bounded(model, query: float):
     """``model.distance_model(query)`` with pybullet asked only about bodies that may be
-    within ``query`` (module docstring); the model's own distance model for robots this
-    module does not know."""
-    panda = _panda_of(model)
-    if panda is None:
-        return model.distance_model(query)
-    return BoundedDistances(panda, query)
+    within ``query`` (module docstring): the model's ``bounded_distance_model`` (a Panda's,
+    or an empty-handed mobile arm's, is a :class:`BoundedDistances`), or its own distance
+    model for robots that have none."""
+    make = getattr(model, "bounded_distance_model", None)
+    return make(query) if callable(make) else model.distance_model(query)

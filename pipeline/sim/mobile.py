@@ -200,6 +200,12 @@ class MobileArm(Robot):
     def check(self, states: np.ndarray) -> tuple[bool, int]:
         return self.robot.arm_check(states)
 
+    def certified(self):
+        """This arm with sphere-certified checks (the ``certified`` capability)."""
+        from pipeline.sim.fast_check import certified_mobile_arm
+
+        return certified_mobile_arm(self)
+
 
 class UnladenArm(MobileArm):
     """:class:`MobileArm` of a robot that holds nothing: its signed distances are the arm
@@ -209,6 +215,9 @@ class UnladenArm(MobileArm):
 
     def distance_model(self, query: float):
         return self.robot.arm.distance_model(query)
+
+    def bounded_distance_model(self, query: float):
+        return self.robot.arm.bounded_distance_model(query)
 
 
 class MobileBase(Robot):
@@ -220,6 +229,12 @@ class MobileBase(Robot):
     def __init__(self, robot: MobilePanda, psi_scale: float, lower, upper):
         self.robot, self.psi_scale = robot, psi_scale
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
+
+    def certified(self):
+        """This base with sphere-certified checks (the ``certified`` capability)."""
+        from pipeline.sim.fast_check import certified_mobile_base
+
+        return certified_mobile_base(self)
 
     def collides(self, s) -> bool:
         return self.robot.base_collides((s[0], s[1], s[2] / self.psi_scale))

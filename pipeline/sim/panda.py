@@ -106,6 +106,19 @@ class Panda(Robot):
         bodies = self.obstacles()
         return lambda q: self.distances(q, bodies, query)
 
+    def certified(self):
+        """This arm with sphere-certified checks (the ``certified`` capability)."""
+        from pipeline.sim.fast_check import certified_panda
+
+        return certified_panda(self)
+
+    def bounded_distance_model(self, query: float):
+        """:meth:`distance_model` asking pybullet only about bodies that may be within
+        ``query`` (the ``bounded_distances`` capability; the same numbers)."""
+        from pipeline.sim.fast_distance import BoundedDistances
+
+        return BoundedDistances(self, query)
+
     def distances(self, q, bodies, query: float) -> tuple[np.ndarray, np.ndarray]:
         """Signed distances (k,) of the arm's links to ``bodies`` closer than ``query`` at
         ``q``, and their gradients (k, 7): the contact normal (from the obstacle towards
