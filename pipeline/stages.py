@@ -28,47 +28,47 @@ from rich.text import Text
 
 from box_core import SELECTOR_REVISION
 from box_core.stats import INTERVAL_METHOD
-from pipeline import configs, environment, evaluation_store, layout, metadata, validation, worker
+from pipeline import configs, environment, validation, worker
 from pipeline.configs import Stage
 from pipeline.context import StageContext
 from pipeline.domains import ConstraintSet, load_domain
 from pipeline.evaluation import interval_method, stored_revision
 from pipeline.execution import Task, connect_first, dask_client, run_tasks
-from pipeline.integrity import Damage, digest
-from pipeline.location import locate
 from pipeline.provenance import Provenance
 from pipeline.store import (
-    ENVIRONMENT,
-    INSTANCE_SEED,
-    INSTANCE_SPEC,
     LAYOUT_VERSION,
-    RAW_CONSTRAINT,
-    THETA,
     LockError,
     ScoreStore,
     StoreDamaged,
     StoreError,
     StoreLock,
-    block_region,
     check_is_ours,
     default_path,
     domain_spec_of,
-    result_key,
+    layout,
+    metadata,
     write_error,
 )
+from pipeline.store import evaluation as evaluation_store
+from pipeline.store.integrity import Damage
+from pipeline.store.layout import (
+    CONSTRAINTS,
+    ENVIRONMENT,
+    FEASIBLE,
+    INSTANCES,
+    RAW,
+    RAW_CONSTRAINT,
+    SCORES,
+    STAGE_INPUTS,
+    STATUS,
+)
+from pipeline.store.location import locate
 
 GENERATE = ("instances", "raw", "constraints", "scores")
 log = logging.getLogger("pipeline")
 
 #: What each stage is computed from (its digests are recorded with the stage).
-INPUTS = {
-    "instances": (),
-    "raw": (INSTANCE_SEED, INSTANCE_SPEC),
-    "constraints": (RAW_CONSTRAINT,),
-    "scores": (INSTANCE_SEED, INSTANCE_SPEC, THETA),
-    "evaluate": (*(result_key("scores", k) for k in ("feasible", "length", "time")), THETA,
-                 result_key("raw", "feasible"), result_key("raw", "time")),
-}
+INPUTS = STAGE_INPUTS
 
 
 def instance_seeds(seed: int, n: int) -> np.ndarray:
@@ -144,7 +144,7 @@ class Run:
         if note:
             self.say(f"[yellow]store: {note}")
         if self.store.layout_version < LAYOUT_VERSION:
-            from pipeline.migrate import migrate
+            from pipeline.store.migrate import migrate
 
             for note in migrate(self.store, self.domain):
                 self.say(f"store: migrated to {note}")
@@ -264,7 +264,7 @@ class Run:
         def finished(task: Task, result: tuple[dict, dict]) -> None:
             arrays, report = result
             where = provenance.index(report["environment"])
-            arrays[ENVIRONMENT] = np.full(np.shape(arrays["status"]), where, dtype="int16")
+            arrays[ENVIRONMENT] = np.full(np.shape(arrays[STATUS]), where, dtype="int16")
             self.store.write_block(group, task.block, arrays)
             statuses.update(report["status"])
             for message in report["errors"]:
@@ -339,57 +339,14 @@ def todo_evaluate(run: Run) -> str | None:
     return f"its results are damaged: {damage.describe()}" if damage else None
 
 
-TODO = {"instances": lambda run: todo_whole(run, "instances", "instances"),
-        "raw": lambda run: todo_blocks(run, "raw"),
-        "constraints": lambda run: todo_whole(run, "constraints", "constraints"),
-        "scores": lambda run: todo_blocks(run, "scores"),
+TODO = {"instances": lambda run: todo_whole(run, "instances", INSTANCES),
+        "raw": lambda run: todo_blocks(run, RAW),
+        "constraints": lambda run: todo_whole(run, "constraints", CONSTRAINTS),
+        "scores": lambda run: todo_blocks(run, SCORES),
         "evaluate": todo_evaluate}
 
 
 # -- stages --------------------------------------------------------------------------------
-def _write_whole(run: Run, group: str, arrays: dict[str, np.ndarray], make) -> None:
-    """Write a group computed whole (``make()`` creates its arrays and table when absent).
-
-    Over an existing, recorded group only damaged or unrecorded blocks are rewritten, and
-    only when the values computed again agree with the recorded digests: otherwise the
-    group is refused, naming the array (computing it again does not give what was stored).
-    """
-    store = run.store
-    if not store.has_table(group) or store.stage_info(group) is None \
-            or run.changed_inputs(group) or store.missing_arrays(group):
-        make()
-        for name, values in arrays.items():
-            store.array(f"{group}/{name}")[...] = values
-        store.record_blocks(group)
-        return
-    layout = store.layout(group)
-    table = store.array(f"integrity/{group}")
-    damaged = store.verify(group, expect_all=True).blocks
-    for block in np.ndindex(*store.grid(group)):
-        try:
-            row = table.blocks[(*block, 0)].reshape(-1)
-        except Exception:  # noqa: BLE001 (an unreadable record: rewritten below)
-            row = np.zeros(len(layout.names), dtype="uint64")
-        fresh = []
-        for k, name in enumerate(layout.names):
-            arr = store.array(f"{group}/{name}")
-            chunk = layout.chunk_of(arr.metadata.dimension_names, block)
-            values = arrays[name][block_region(chunk, arr.chunks)]
-            fresh.append(digest(values))
-            if row[k] and row[k] != fresh[-1]:
-                raise StoreError(f"{group}/{name}: block {block} is damaged and computing it "
-                                 "again from its seeds gives different values; the store "
-                                 "cannot be repaired: regenerate it (store.mode=overwrite or "
-                                 "another store.path)")
-        if block in damaged or not np.all(row):
-            for name in layout.names:
-                arr = store.array(f"{group}/{name}")
-                region = block_region(layout.chunk_of(arr.metadata.dimension_names, block),
-                                      arr.chunks)
-                arr[region] = arrays[name][region]
-            table[block] = np.array(fresh, dtype="uint64")
-
-
 def stage_instances(run: Run) -> None:
     store, n = run.store, run.cfg.instances.n
     reason = run.todo("instances")
@@ -400,14 +357,15 @@ def stage_instances(run: Run) -> None:
     specs = np.array([json.dumps(run.domain.sample_instance(int(s)), sort_keys=True)
                       for s in seeds], dtype=str)
     size = layout.size_of(store.attrs)
-    coords = layout.coords("instances", run.domain, size)
+    coords = layout.coords(INSTANCES, run.domain, size)
 
     def make():
-        layout.create(store, "instances", run.domain, size, coords)
+        layout.create(store, INSTANCES, run.domain, size, coords)
 
     repairing = store.stage_info("instances") is not None
-    _write_whole(run, "instances", {"seed": seeds, "spec": specs,
-                                    **{k: v for k, (_, v, _) in coords.items()}}, make)
+    store.write_whole(INSTANCES, {**layout.instance_arrays(seeds, specs),
+                                  **{k: v for k, (_, v, _) in coords.items()}}, make,
+                      changed=lambda: run.changed_inputs("instances"))
     run.finish("instances", n=n)
     if repairing:
         run.say(f"instances: {reason}; sampled again from their seeds and repaired")
@@ -428,13 +386,13 @@ def stage_raw(run: Run) -> None:
     if reason is None:
         run.say("raw: already complete; nothing to do")
         return
-    if lost_table(store, "raw"):
+    if lost_table(store, RAW):
         run.say(f"[yellow]raw: {reason}")
     size = layout.size_of(store.attrs)
-    coords = layout.coords("raw", run.domain, size, seeds=store.instance_seeds())
-    if not store.has_table("raw") or store.missing_arrays("raw"):
-        layout.create(store, "raw", run.domain, size, coords)
-    pending = run.pending_blocks("raw", coords)
+    coords = layout.coords(RAW, run.domain, size, seeds=store.instance_seeds())
+    if not store.has_table(RAW) or store.missing_arrays(RAW):
+        layout.create(store, RAW, run.domain, size, coords)
+    pending = run.pending_blocks(RAW, coords)
     store.forget_stage("raw")
     specs, seeds = _inputs(run)
     tasks = []
@@ -445,8 +403,8 @@ def stage_raw(run: Run) -> None:
                           entries=rows.stop - rows.start, block=(bi,)))
     if len(pending) < -(-n // b):
         run.say(f"raw: resuming, {n - sum(t.entries for t in tasks)} of {n} already done")
-    run.run_blocks("raw", tasks, "raw")
-    feasible = store.array(result_key("raw", "feasible"))[:]
+    run.run_blocks(RAW, tasks, "raw")
+    feasible = store.result(RAW, FEASIBLE)
     run.finish("raw", feasible=int(feasible.sum()))
     run.say(f"raw: RAWPLANNER solved {int(feasible.sum())} of {n} instances")
 
@@ -476,15 +434,16 @@ def stage_constraints(run: Run) -> None:
         keep = np.sort(rng.choice(candidates.m, size=m, replace=False))
     theta = candidates.features[keep]
     size = layout.size_of(store.attrs)._replace(m=len(keep))
-    coords = layout.coords("constraints", domain, size)
+    coords = layout.coords(CONSTRAINTS, domain, size)
 
     def make():
-        layout.create(store, "constraints", domain, size, coords)
+        layout.create(store, CONSTRAINTS, domain, size, coords)
 
     repairing = store.stage_info("constraints") is not None and "damaged" in reason
-    _write_whole(run, "constraints", {"theta": theta,
-                                      "source_instance": candidates.source_instance[keep],
-                                      **{k: v for k, (_, v, _) in coords.items()}}, make)
+    store.write_whole(CONSTRAINTS, {**layout.constraint_arrays(
+                          theta, candidates.source_instance[keep]),
+                      **{k: v for k, (_, v, _) in coords.items()}}, make,
+                      changed=lambda: run.changed_inputs("constraints"))
     run.finish("constraints", m=len(keep), candidates=candidates.m, m_requested=m)
     if repairing:
         run.say(f"constraints: {reason}; computed again and repaired")
@@ -502,14 +461,14 @@ def stage_scores(run: Run) -> None:
     if reason is None:
         run.say(f"scores: already complete ({n} x {m}); nothing to do")
         return
-    if lost_table(store, "scores"):
+    if lost_table(store, SCORES):
         run.say(f"[yellow]scores: {reason}")
     size = layout.size_of(store.attrs)
-    coords = layout.coords("scores", run.domain, size, seeds=store.instance_seeds(),
+    coords = layout.coords(SCORES, run.domain, size, seeds=store.instance_seeds(),
                            sources=store.source_instances())
-    if not store.has_table("scores") or store.missing_arrays("scores"):
-        layout.create(store, "scores", run.domain, size, coords)
-    pending = run.pending_blocks("scores", coords)
+    if not store.has_table(SCORES) or store.missing_arrays(SCORES):
+        layout.create(store, SCORES, run.domain, size, coords)
+    pending = run.pending_blocks(SCORES, coords)
     store.forget_stage("scores")
     specs, seeds = _inputs(run)
     theta = store.theta()
@@ -524,8 +483,8 @@ def stage_scores(run: Run) -> None:
     todo = sum(t.entries for t in tasks)
     if todo < n * m:
         run.say(f"scores: resuming, {n * m - todo} of {n * m} entries already done")
-    statuses = run.run_blocks("scores", tasks, "scores")
-    feasible = store.array(result_key("scores", "feasible"))[...]
+    statuses = run.run_blocks(SCORES, tasks, "scores")
+    feasible = store.result(SCORES, FEASIBLE)
     run.finish("scores", feasible_fraction=float(feasible.mean()))
     mix = ", ".join(f"{k} {v}" for k, v in statuses.most_common()) or "none this run"
     run.say(f"scores: {n} x {m} complete, {feasible.mean():.1%} feasible (computed now: {mix})")
@@ -541,7 +500,7 @@ def stage_evaluate(run: Run) -> None:
         run.say(f"evaluate: running again: {reason}")
     if reason is not None:
         store.forget_stage("evaluate")  # derived data: replaced as a whole
-        store.remove("evaluation")
+        evaluation_store.remove(store)
     evaluation.evaluate(run.context())
     if reason is not None:
         keys = [k for k in INPUTS["evaluate"] if store.has(k)]
@@ -605,7 +564,7 @@ def run_pipeline(cfg, console: Console) -> None:
     stage = cfg.stage if isinstance(cfg.stage, Stage) else Stage(cfg.stage)
     run = Run(cfg, console)
     if stage is Stage.status:
-        from pipeline.status import damaged, print_status
+        from pipeline.store.status import damaged, print_status
 
         report = print_status(run.location, console)
         if damaged(report):
