@@ -186,7 +186,7 @@ class ScoreStore(Readers, BlockWrites, Verification):
             store = cls(location)
             stored = store.attrs.get("identity")
             if stored == identity:
-                return store  # the caller migrates an older layout (pipeline/migrate.py)
+                return store  # the caller migrates an older layout (pipeline/store/migrate.py)
             if not overwrite:
                 keys = differing_keys(stored or {}, identity)
                 raise StoreError(
