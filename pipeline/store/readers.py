@@ -64,7 +64,7 @@ class Readers:
 
     def has_results(self, group: str) -> bool:
         """Whether result group ``group`` (``raw`` or ``scores``) has been created."""
-        return self.has(result_key(group, "done"))
+        return self.has(done_key(group))
 
     def source_instances(self) -> np.ndarray:
         """(m,) the instance whose raw solution gave each constraint; -1: fixed."""
