@@ -25,6 +25,7 @@ from rich.console import Console
 
 from pipeline import configs, stages, worker
 from pipeline.store import ScoreStore
+from pipeline.store.layout import SCORES, table_key
 
 
 def compose_cfg(store: Path, overrides: list[str]):
@@ -62,9 +63,9 @@ def timed_scores(store: Path, overrides: list[str], console: Console) -> tuple[f
     run = stages.Run(cfg, console)
     try:
         run.open_for_writing()
-        if run.store.has("scores/done"):  # start from an empty scores group each time
-            run.store.remove("scores")
-            run.store.remove("integrity/scores")
+        if run.store.has_results(SCORES):  # start from an empty scores group each time
+            run.store.remove(SCORES)
+            run.store.remove(table_key(SCORES))
             run.store.forget_stage("scores")
         t0 = time.perf_counter()
         _ = run.client

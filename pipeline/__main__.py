@@ -41,7 +41,7 @@ def main(cfg) -> None:
     except TaskFailed as exc:
         _end(err, "failed", exc, FAILED)
     except Exception as exc:  # noqa: BLE001 - storage failures come as many types
-        from pipeline.storage_errors import storage_error
+        from pipeline.store.storage_errors import storage_error
 
         problem = storage_error(exc, _location(cfg))  # e.g. the endpoint went away mid-run
         if problem is None:
@@ -94,7 +94,7 @@ def _location(cfg):
     """The Location of the run's store (as :class:`pipeline.stages.Run` resolves it)."""
     from omegaconf import OmegaConf
 
-    from pipeline.location import locate
+    from pipeline.store.location import locate
     from pipeline.validation import run_store
 
     plain = OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)

@@ -14,9 +14,9 @@ from rich.markup import escape
 import box_core
 from box_core import synthetic
 from box_core.io import MatrixFile, load_matrix
-from pipeline.errors import StoreDamaged
-from pipeline.storage_errors import translated
-from pipeline.store import INSTANCE_SEED, INSTANCE_SPEC, THETA, ScoreStore, StoreError, result_key
+from pipeline.store import ScoreStore, StoreDamaged, StoreError
+from pipeline.store.layout import FEASIBLE, INSTANCE_SEED, INSTANCE_SPEC, SCORES, THETA
+from pipeline.store.storage_errors import translated
 from pipeline.tables import stdout_console, summary_table
 
 app = typer.Typer(
@@ -239,7 +239,7 @@ def status(store: str = typer.Argument(..., help=STORE_URL_HELP),
     of this pipeline, or cannot be reached or read (credentials, endpoint, permissions, a
     truncated or invalid zarr.json).
     """
-    from pipeline.status import collect, damaged, print_status
+    from pipeline.store.status import collect, damaged, print_status
 
     with _reading(store):
         report = collect(store) if as_json else print_status(store, out)
@@ -289,8 +289,8 @@ def show(
                                  f"{theta.shape[0]} constraints")
             seed = entry_seed(int(st.attrs["config"]["seed"]),
                               int(st.array(INSTANCE_SEED)[instance]), constraint)
-            if st.has_results("scores") and st.done("scores")[instance, constraint]:
-                was = bool(st.array(result_key("scores", "feasible"))[instance, constraint])
+            if st.has_results(SCORES) and st.done(SCORES)[instance, constraint]:
+                was = bool(st.result(SCORES, FEASIBLE)[instance, constraint])
     try:
         if constraint is None:
             domain.render(spec, None, target)

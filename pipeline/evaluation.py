@@ -6,11 +6,11 @@ import numpy as np
 
 import box_core
 from box_core.stats import INTERVAL_METHOD
-from pipeline import evaluation_store
 from pipeline.configs import RAWPLANNER
 from pipeline.context import StageContext
-from pipeline.evaluation_store import StoredEvaluation, raw_curve
-from pipeline.store import SOURCE_INSTANCE, result_key
+from pipeline.store import evaluation as evaluation_store
+from pipeline.store.evaluation import StoredEvaluation, raw_curve
+from pipeline.store.layout import FEASIBLE, LENGTH, RAW, SCORES, SOURCE_INSTANCE, TIME, result_key
 from pipeline.tables import summary_table
 
 
@@ -22,7 +22,7 @@ def own_constraints(store) -> np.ndarray | None:
     source = store.source_instances()
     if not (source >= 0).any():
         return None
-    n = store.array(result_key("scores", "feasible")).shape[0]
+    n = store.array(result_key(SCORES, FEASIBLE)).shape[0]
     return source[None, :] == np.arange(n)[:, None]
 
 
@@ -68,8 +68,8 @@ def evaluate(ctx: StageContext) -> None:
         raise ValueError(f"evaluate: {exc}") from None
     others, curves = {}, {}
     if with_raw:
-        raw_ok, raw_time, raw_length = (store.array(result_key("raw", name))[...]
-                                        for name in ("feasible", "time", "length"))
+        raw_ok, raw_time, raw_length = (store.result(RAW, name)
+                                        for name in (FEASIBLE, TIME, LENGTH))
         others[RAWPLANNER] = np.where(raw_ok, raw_time, np.nan)
         curves[RAWPLANNER] = raw_curve(raw_ok, raw_time, raw_length, result.time_grid,
                                        result.failure_value)
@@ -81,7 +81,7 @@ def evaluate(ctx: StageContext) -> None:
         first_feasible_time={**result.first_feasible_time, **others},
         best_score={**result.best_score, **curves},
         first_feasible_step=result.first_feasible_step, order=result.order),
-        score_units=store.array(result_key("scores", "score")).attrs.get("units", "1"))
+        score_units=store.score_units())
     # what the report states about leakage: how many rows had constraints of their own,
     # and whether those were hidden from them
     leakage = {"own_constraint_rows": 0 if own is None else int(own.any(axis=1).sum()),

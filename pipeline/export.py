@@ -29,33 +29,49 @@ import numpy as np
 
 from box_core.failure import failure_value
 from pipeline.evaluation import own_constraints
-from pipeline.store import ScoreStore, StoreError, result_key
+from pipeline.store import ScoreStore, StoreError
+from pipeline.store.layout import (
+    CHECKS,
+    CONSTRAINTS,
+    FEASIBLE,
+    FEATURE,
+    FEATURE_UNITS,
+    LENGTH,
+    SCORE,
+    SCORES,
+    STATUS,
+    STEP,
+    TIME,
+    key,
+    result_key,
+)
 
 #: format -> the suffix of its file ("" for a folder)
 FORMATS = {"npz": ".npz", "netcdf": ".nc", "parquet": ".parquet", "csv": ""}
-STEP = result_key("scores", "step")
+STEP_KEY = result_key(SCORES, STEP)
 #: the key of the metadata in a Parquet file's key-value metadata
 PARQUET_KEY = b"box-planning"
 
 
 def _arrays(store: ScoreStore) -> dict[str, np.ndarray]:
-    if not store.has_results("scores"):
+    if not store.has_results(SCORES):
         raise StoreError(f"{store.path} has no score matrix yet; run stage=generate first")
-    done = store.done("scores")
-    def scores(name):
-        return store.array(result_key("scores", name))[...]
+    done = store.done(SCORES)
 
-    feasible = scores("feasible") & done
-    length = scores("length")
+    def scores(name):
+        return store.result(SCORES, name)
+
+    feasible = scores(FEASIBLE) & done
+    length = scores(LENGTH)
     arrays = {
         "scores": np.where(feasible, -length, np.nan),  # what ``box evaluate`` reads
         "feasible": feasible,
-        "times": scores("time"),
+        "times": scores(TIME),
         "features": store.theta(),
         "length": length,
-        "status": scores("status"),
-        "checks": scores("checks"),
-        "step": (scores("step") if store.has(result_key("scores", "step"))  # older stores
+        "status": scores(STATUS),
+        "checks": scores(CHECKS),
+        "step": (scores(STEP) if store.has(STEP_KEY)  # older stores
                  else np.full(feasible.shape, -1, dtype="int8")),
         "done": done,
         "instance_seed": store.instance_seeds(),
@@ -78,8 +94,8 @@ def metadata(store: ScoreStore, arrays: dict) -> dict:
             "git_revision": attrs.get("git_revision"), "created": attrs.get("created"),
             "stages": attrs.get("stages"), "complete": bool(arrays["done"].all()),
             "status_codes": {s.name: int(s) for s in Status},
-            "steps": (store.array(STEP).attrs.get("flag_meanings", "").split()
-                      if store.has(STEP) else []),
+            "steps": (store.array(STEP_KEY).attrs.get("flag_meanings", "").split()
+                      if store.has(STEP_KEY) else []),
             "score": "-(path length) where feasible; NaN where infeasible or not computed",
             "failure_value": failure, "failure_rule": "magnitude",
             "failure": "box evaluate scores infeasible entries with failure_value = "
@@ -103,7 +119,7 @@ def export(path, fmt: str, out: Path | None = None, overwrite: bool = False) -> 
     """
     if fmt not in FORMATS:
         raise ValueError(f"unknown format {fmt!r}; choose {', '.join(FORMATS)}")
-    from pipeline.status import refuse_damaged
+    from pipeline.store.status import refuse_damaged
 
     store = ScoreStore.open(path)
     refuse_damaged(store)
@@ -246,21 +262,21 @@ def _write_netcdf(out: Path, store, arrays, meta) -> None:
 
     entry = ("instance", "constraint")
     n, m = arrays["feasible"].shape
-    data, stored = {}, {"scores": "score", "times": "time"}
+    data, stored = {}, {"scores": SCORE, "times": TIME}  # names in the store, where other
     for name in ("scores", "feasible", "times", "length", "status", "checks", "step", "done",
                  "forbidden"):
         if name in arrays:
-            key = result_key("scores", stored.get(name, name))
-            attrs = dict(store.array(key).attrs) if store.has(key) else {}
+            at = result_key(SCORES, stored.get(name, name))
+            attrs = dict(store.array(at).attrs) if store.has(at) else {}
             attrs.pop("coordinates", None)
             data[name] = xr.Variable(entry, arrays[name], attrs)
     data["scores"].attrs["long_name"] = "score: minus the path length (NaN: infeasible)"
     data["features"] = (("constraint", "feature"), arrays["features"])
     coords = {"instance": np.arange(n), "constraint": np.arange(m),
               "instance_seed": ("instance", arrays["instance_seed"])}
-    for name in ("feature", "feature_units"):
-        if store.has(f"constraints/{name}"):
-            values = store.array(f"constraints/{name}")[...]
+    for name in (FEATURE, FEATURE_UNITS):
+        if store.has(key(CONSTRAINTS, name)):
+            values = store.array(key(CONSTRAINTS, name))[...]
             coords[name] = ("feature", [str(v) for v in values])
     ds = xr.Dataset(data, coords=coords)
     ds.attrs.update(metadata=json.dumps(meta), failure_rule=meta["failure_rule"],

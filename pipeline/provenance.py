@@ -15,8 +15,8 @@ from collections.abc import Callable
 
 from pipeline.configs import EnvironmentPolicy
 from pipeline.environment import RTOL, difference
-from pipeline.errors import StoreError
 from pipeline.store import UNKNOWN_ENVIRONMENT, ScoreStore
+from pipeline.store.errors import StoreError
 
 WHY = f"floats agree within {RTOL:g} relative, not bitwise (docs/reproducibility.md)"
 

@@ -24,6 +24,7 @@ from pipeline.context import StageContext
 from pipeline.report import fmt
 from pipeline.report.figures import label
 from pipeline.store import ScoreStore, StoreError
+from pipeline.store.layout import SCORES
 
 #: Fresh instance i of run ``seed`` is drawn from SeedSequence([seed, SOLVE_STREAM, i]);
 #: the store's instances use SeedSequence([seed, i]).  Collisions are skipped explicitly.
@@ -45,9 +46,9 @@ def fresh_seeds(seed: int, n: int, used) -> list[int]:
 def training_matrix(store: ScoreStore, use_incomplete: bool, failure_rule: str):
     """(filled scores of the usable rows, their feasibility and times, theta, failure
     value, rows used)."""
-    if store.stage_info("constraints") is None or not store.has_results("scores"):
+    if store.stage_info("constraints") is None or not store.has_results(SCORES):
         raise StoreError(f"{store.path} has no score matrix yet; run stage=generate first")
-    done = store.done("scores")
+    done = store.done(SCORES)
     complete = done.all(axis=1)
     if store.stage_info("scores") is None:
         if not use_incomplete:

@@ -342,8 +342,9 @@ def check_report_stores(paths: list[Path], available: float | None = None) -> No
                 f"report: {path} was evaluated with selectors {evaluated}; the report draws "
                 f"{REPORT_NEEDS} (learning curve, C sensitivity, renders): re-run "
                 f"stage=evaluate with evaluate.selectors including {REPORT_NEEDS}")
-        if available is not None and store.has("scores/done"):
-            n, m = store.array("scores/done").shape
+        shape = store.matrix_shape()
+        if available is not None and shape is not None:
+            n, m = shape
             need = evaluation_bytes(n, m, 2)
             if need > available:
                 raise ConfigError(f"report: {path} ({n} x {m}) needs about {memory_text(need)} in "

@@ -21,7 +21,17 @@ from pipeline.entry_progress import EntryReporter
 from pipeline.environment import fingerprint
 from pipeline.planning import PlanResult, Status
 from pipeline.planning.registry import planner_class
-from pipeline.store import RESULT_COLUMNS
+from pipeline.store.layout import (
+    CHECKS,
+    FEASIBLE,
+    LENGTH,
+    RESULT_COLUMNS,
+    SCORE,
+    STATUS,
+    STEP,
+    TIME,
+    raw_extras,
+)
 
 #: Stands in for the constraint index in the seed of RAWPLANNER's call on an instance.
 RAW_ENTRY = 2**40
@@ -36,13 +46,13 @@ def _results_block(results: list[PlanResult], shape, steps=()) -> dict[str, np.n
     out = {name: np.full(shape, col.fill, dtype=col.dtype) for name, col in RESULT_COLUMNS.items()}
     flat = {name: arr.reshape(-1) for name, arr in out.items()}
     for k, r in enumerate(results):
-        flat["score"][k] = r.score
-        flat["length"][k] = r.length if r.feasible else np.nan
-        flat["feasible"][k] = r.feasible
-        flat["time"][k] = r.time
-        flat["status"][k] = int(r.status)
-        flat["checks"][k] = r.checks
-        flat["step"][k] = steps.index(r.step) if r.step else -1
+        flat[SCORE][k] = r.score
+        flat[LENGTH][k] = r.length if r.feasible else np.nan
+        flat[FEASIBLE][k] = r.feasible
+        flat[TIME][k] = r.time
+        flat[STATUS][k] = int(r.status)
+        flat[CHECKS][k] = r.checks
+        flat[STEP][k] = steps.index(r.step) if r.step else -1
     return out
 
 
@@ -56,9 +66,9 @@ def score_block(domain_spec: dict, run_seed: int, specs: list[str], seeds: list[
     shape = (len(specs), len(theta))
     if skip:
         arrays = _results_block([], shape)
-        arrays["status"][...] = int(Status.SKIPPED)
-        arrays["time"][...] = 0.0
-        return arrays, _report(Counter({Status.SKIPPED.name.lower(): arrays["status"].size}),
+        arrays[STATUS][...] = int(Status.SKIPPED)
+        arrays[TIME][...] = 0.0
+        return arrays, _report(Counter({Status.SKIPPED.name.lower(): arrays[STATUS].size}),
                                [], t0)
     results, reporter = [], EntryReporter()
     for spec, inst_seed in zip(specs, seeds, strict=True):
@@ -81,8 +91,8 @@ def raw_block(domain_spec: dict, run_seed: int, specs: list[str],
                                     seed=entry_seed(run_seed, int(s), RAW_ENTRY)))
         reporter.add()
     arrays = _results_block([r.plan for r in raws], (len(raws),), domain.steps)
-    arrays["tries"] = np.array([r.tries for r in raws], dtype="int32")
-    arrays["constraint"] = np.stack([r.constraint for r in raws]).astype("float64")
+    arrays.update(raw_extras(np.array([r.tries for r in raws], dtype="int32"),
+                             np.stack([r.constraint for r in raws]).astype("float64")))
     return arrays, _summary([r.plan for r in raws], t0)
 
 

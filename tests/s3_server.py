@@ -65,7 +65,7 @@ def serve():
 
 
 def _group(url: str) -> zarr.Group:
-    from pipeline.location import locate
+    from pipeline.store.location import locate
 
     return zarr.open_group(store=locate(url).zarr_store(read_only=True), mode="r",
                            use_consolidated=False)

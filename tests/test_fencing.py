@@ -5,7 +5,7 @@ stops with one line, never saying "complete"; a run that ends removes its lock f
 import signal
 import time
 
-from pipeline.locking import LOCK_SUFFIX, StoreLock
+from pipeline.store.locking import LOCK_SUFFIX, StoreLock
 from tests import pipeline_runs as pr
 
 

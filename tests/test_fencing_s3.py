@@ -14,9 +14,9 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from pipeline.errors import LockError
-from pipeline.location import locate
-from pipeline.locking import LEASE_ENV, LeaseLock, StoreLock
+from pipeline.store.errors import LockError
+from pipeline.store.location import locate
+from pipeline.store.locking import LEASE_ENV, LeaseLock, StoreLock
 from tests import pipeline_runs as pr
 from tests.s3_server import BUCKET, done, serve
 

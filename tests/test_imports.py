@@ -22,7 +22,8 @@ def loaded_after(code: str) -> dict:
     return json.loads(out.strip().splitlines()[-1])
 
 
-@pytest.mark.parametrize("module", ["box_core", "pipeline.store", "pipeline.configs",
+@pytest.mark.parametrize("module", ["box_core", "pipeline.store", "pipeline.store.status",
+                                    "pipeline.store.migrate", "pipeline.configs",
                                     "pipeline.planning", "pipeline.domains",
                                     "pipeline.domains.planar"])
 def test_light_modules_load_neither_ompl_nor_pybullet(module):

@@ -22,10 +22,10 @@ import pytest
 from hydra import compose, initialize_config_dir
 from rich.console import Console
 
-from pipeline import status
 from pipeline.configs import CONF_DIR, register_configs
-from pipeline.errors import StoreError
 from pipeline.stages import run_pipeline
+from pipeline.store import status
+from pipeline.store.errors import StoreError
 from tests import pipeline_runs as pr
 
 #: The evaluation's arrays that hold measured times.

@@ -3,8 +3,8 @@ fsspec filesystems, and the one-line refusals of anything else."""
 
 import pytest
 
-from pipeline.location import URL, locate
 from pipeline.store import StoreError
+from pipeline.store.location import URL, locate
 
 
 def test_local_paths_and_file_urls_resolve_to_the_same_place(tmp_path):

@@ -89,7 +89,7 @@ def test_box_evaluate_fits_80_columns(matrix_file):
 
 
 def test_box_status_fits_80_columns_with_whole_array_names(made):
-    from pipeline.status import collect
+    from pipeline.store.status import collect
 
     res = _run_box("status", str(made[0]))
     assert res.returncode == 0, res.stderr

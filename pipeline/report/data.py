@@ -7,9 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import evaluation_store
 from pipeline.evaluation import own_constraints
-from pipeline.store import ScoreStore, StoreError, result_key
+from pipeline.store import ScoreStore, StoreError
+from pipeline.store import evaluation as evaluation_store
+from pipeline.store.layout import FEASIBLE, LENGTH, RAW, TIME
 
 
 @dataclass(eq=False)
@@ -114,7 +115,7 @@ def load(path) -> StoreResults:
     n = scores.shape[0]
 
     def raw(name, missing):
-        return store.array(result_key("raw", name))[...] if has_raw else missing
+        return store.result(RAW, name) if has_raw else missing
     attrs = store.attrs
     return StoreResults(
         path=store.path,
@@ -124,9 +125,9 @@ def load(path) -> StoreResults:
         scores=scores, feasible=feasible, times=times, theta=theta,
         instance_specs=store.instance_specs(),
         instance_seeds=store.instance_seeds(),
-        raw_feasible=raw("feasible", np.zeros(n, bool)),
-        raw_time=raw("time", np.full(n, np.nan)),
-        raw_length=raw("length", np.full(n, np.nan)),
+        raw_feasible=raw(FEASIBLE, np.zeros(n, bool)),
+        raw_time=raw(TIME, np.full(n, np.nan)),
+        raw_length=raw(LENGTH, np.full(n, np.nan)),
         summary=info["summary"], settings=info["settings"],
         failure_value=float(info["failure_value"]),
         time_grid=stored.time_grid, eligible=stored.eligible,

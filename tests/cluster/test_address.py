@@ -139,7 +139,7 @@ def test_worker_with_another_version_is_named(tmp_path, dask_procs):
     for package in worker_side.PACKAGES:
         shutil.copytree(ROOT / package, other / package,
                         ignore=shutil.ignore_patterns("__pycache__"))
-    with open(other / "pipeline" / "stages.py", "a") as f:
+    with open(other / "pipeline" / "stages" / "__init__.py", "a") as f:
         f.write("\n# another version\n")
     address = dask_procs.scheduler()
     dask_procs.worker(env={**pr.env(), "PYTHONPATH": str(other)})

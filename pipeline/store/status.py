@@ -6,15 +6,15 @@ from __future__ import annotations
 import numpy as np
 from rich.console import Console
 
-from pipeline import integrity, metadata
 from pipeline.environment import describe, difference
-from pipeline.integrity import Damage
 from pipeline.provenance import WHY
-from pipeline.store import BLOCK_DIMS, ScoreStore, StoreError, StoreLock
+from pipeline.store import integrity, metadata
+from pipeline.store.errors import StoreError
+from pipeline.store.integrity import Damage
+from pipeline.store.layout import BLOCK_DIMS, STAGE_GROUPS
+from pipeline.store.locking import StoreLock
+from pipeline.store.score_store import ScoreStore
 from pipeline.tables import Column, FittedTable
-
-STAGE_GROUPS = {"instances": "instances", "raw": "raw", "constraints": "constraints",
-                "scores": "scores", "evaluate": "evaluation"}
 
 
 def _damage(store: ScoreStore, stage: str, group: str) -> Damage:

@@ -1,11 +1,11 @@
 """Checking every metadata document of a store, and repairing what can be known.
 
-Chunk digests (:mod:`pipeline.integrity`) say nothing about the ``zarr.json`` documents that
+Chunk digests (:mod:`pipeline.store.integrity`) say nothing about the ``zarr.json`` documents that
 tell a reader how to decode the chunks and what they mean, so those are checked here, each
 against what can be known of it:
 
 * the arrays and groups of the block groups and their integrity tables: the documents
-  :func:`pipeline.layout.expected` derives from the store's identity (shape, chunk grid,
+  :func:`pipeline.store.layout.expected` derives from the store's identity (shape, chunk grid,
   data type, codecs, fill value, dimension names, attributes such as ``flag_meanings``);
   a re-run rewrites them from there, then the chunk digests decide what to compute again;
 * the evaluation's arrays: the documents the evaluate stage recorded when it wrote them
@@ -29,11 +29,15 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-from pipeline import integrity
 from pipeline.configs import config_hash
-from pipeline.errors import StoreDamaged, StoreError
-from pipeline.store import FORMAT, LAYOUT_VERSION, ScoreStore
+from pipeline.store import integrity
+from pipeline.store.errors import StoreDamaged, StoreError
+from pipeline.store.layout import FORMAT, LAYOUT_VERSION
+
+if TYPE_CHECKING:
+    from pipeline.store.score_store import ScoreStore
 
 #: Fields of an array document that change how its chunks decode.
 STRUCTURE = ("shape", "data_type", "chunk_grid", "chunk_key_encoding", "fill_value", "codecs",
@@ -192,7 +196,7 @@ def check(store: ScoreStore, domain) -> list[Difference]:
     if any(d.action == REFUSE and "layout_version" in d.what for d in found) \
             or store.layout_version < LAYOUT_VERSION:
         return found
-    from pipeline import layout
+    from pipeline.store import layout
 
     stages = store.attrs.get("stages") or {}
     groups = [g for g in layout.GROUPS if store.has_group(g)
@@ -251,7 +255,7 @@ def repair(store: ScoreStore, domain, found: list[Difference]) -> list[str]:
         raise StoreError(f"store {store.path}: {describe(refused)}; its right value cannot "
                          "be known: restore it, or regenerate the store (store.mode=overwrite "
                          "or another store.path)")
-    from pipeline import layout
+    from pipeline.store import layout
 
     notes = []
     rewrite = [d for d in found if d.action == REWRITE and d.node not in ("", integrity.GROUP)]
@@ -279,10 +283,10 @@ def repair(store: ScoreStore, domain, found: list[Difference]) -> list[str]:
         notes.append(f"the records of stages {', '.join(forget)} differ from their record: "
                      "those stages check their data again")
     if any(d.action == RECOMPUTE for d in found):
-        from pipeline import evaluation_store
+        from pipeline.store import evaluation
 
         store.forget_stage("evaluate")
-        store.remove(evaluation_store.GROUP)
+        store.remove(evaluation.GROUP)
         differs = describe([d for d in found if d.action == RECOMPUTE])
         notes.append(f"evaluation metadata differs ({differs}): computed again")
     record = [d for d in found if d.node == integrity.GROUP]

@@ -37,8 +37,8 @@ import threading
 import time
 import uuid
 
-from pipeline.errors import LockError
-from pipeline.location import Location
+from pipeline.store.errors import LockError
+from pipeline.store.location import Location
 
 LOCK_SUFFIX = ".lock"
 #: A lease not renewed for this long belongs to a dead run (the default lifetime).
@@ -407,7 +407,7 @@ class StoreLock:
     """The lock of the store at ``location`` (a path, URL or Location)."""
 
     def __init__(self, location):
-        from pipeline.location import locate
+        from pipeline.store.location import locate
 
         location = locate(location)
         self._impl = FileLock(location) if location.local is not None else LeaseLock(location)

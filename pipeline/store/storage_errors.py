@@ -19,7 +19,7 @@ import contextlib
 import json
 import os
 
-from pipeline.errors import StoreError
+from pipeline.store.errors import StoreError
 
 #: botocore ClientError codes that mean the credentials were refused (not missing).
 REFUSED_CREDENTIALS = {"InvalidAccessKeyId", "SignatureDoesNotMatch", "ExpiredToken",
@@ -131,7 +131,7 @@ def parse_metadata(raw: bytes, path) -> dict:
     """The JSON of a ``zarr.json``, checked as Zarr reads it (StoreError naming ``path``
     when Zarr could not read it: truncated, not JSON, or values Zarr refuses, such as a fill
     value its data type cannot hold).  Whether readable values are the ones the store's
-    layout needs is :mod:`pipeline.metadata`'s to check (and to repair)."""
+    layout needs is :mod:`pipeline.store.metadata`'s to check (and to repair)."""
     from zarr.core.group import GroupMetadata
     from zarr.core.metadata import ArrayV3Metadata
 
@@ -162,7 +162,7 @@ def has_nodes(location, names) -> bool:
 
 def check_metadata(location) -> None:
     """Read every ``zarr.json`` of the store at ``location`` (a
-    :class:`pipeline.location.Location`): the root's, then each group's children's,
+    :class:`pipeline.store.location.Location`): the root's, then each group's children's,
     concurrently per group (in object storage that is one listing per group and one
     request per node, never a listing of the chunks).  StoreError naming the first that
     Zarr cannot read (:func:`parse_metadata`) or the storage failure met."""

@@ -23,10 +23,27 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.configs import RAWPLANNER
-from pipeline.integrity import digest
-from pipeline.store import TIME_UNITS, ScoreStore, result_key
+from pipeline.store.integrity import digest
+from pipeline.store.layout import (
+    BEST_SCORE,
+    ELIGIBLE,
+    EVALUATION,
+    EVALUATION_ARRAYS,
+    EVALUATION_COORDS,
+    EVALUATION_TIME,
+    FIRST_FEASIBLE_STEP,
+    FIRST_FEASIBLE_TIME,
+    OPTIMAL_SCORE,
+    ORDER,
+    RAW,
+    SELECTOR,
+    TIME_GRID,
+    evaluation_key,
+    result_key,
+)
+from pipeline.store.score_store import ScoreStore
 
-GROUP = "evaluation"
+GROUP = EVALUATION
 #: Rows per chunk along ``instance``.
 BLOCK_ROWS = 1000
 
@@ -46,71 +63,65 @@ class StoredEvaluation:
     order: dict[str, np.ndarray]
 
 
-def key(name: str) -> str:
-    return f"{GROUP}/{name}"
+key = evaluation_key
+
+
+def remove(store: ScoreStore) -> None:
+    """Delete ``evaluation/`` (derived data, replaced as a whole)."""
+    store.remove(GROUP)
 
 
 def write(store: ScoreStore, evaluation: StoredEvaluation, score_units: str) -> None:
-    """Replace ``evaluation/`` with ``evaluation`` (the caller forgets the stage first)."""
-    store.remove(GROUP)
+    """Replace ``evaluation/`` with ``evaluation`` (the caller forgets the stage first): the
+    arrays :data:`pipeline.store.layout.EVALUATION_ARRAYS` declares."""
+    remove(store)
     names = evaluation.selectors
     n, g = len(evaluation.eligible), len(evaluation.time_grid)
     k = max((o.shape[1] for o in evaluation.order.values()), default=0)
     rows = max(1, min(n, BLOCK_ROWS))
-    coords = {"selector": (np.asarray(names, dtype=str), {"long_name": "constraint selector"}),
-              "instance": (np.arange(n), {"long_name": "held-out instance index"}),
-              "step": (np.arange(k), {"long_name": "0-based try of the selector"}),
-              "time": (evaluation.time_grid, {"long_name": "time since the instance was given",
-                                              "units": TIME_UNITS})}
-    for name, (values, attrs) in coords.items():
+    coords = dict(zip(EVALUATION_COORDS, (np.asarray(names, dtype=str), np.arange(n),
+                                          np.arange(k), evaluation.time_grid), strict=True))
+    for name, values in coords.items():
         dtype, fill = (str, "") if values.dtype.kind == "U" else (values.dtype, 0)
         store.create(key(name), values.shape, (max(len(values), 1),), dtype, fill, (name,),
-                     **attrs)[...] = values
-
-    def per_selector(name, values, dims, shape, dtype, fill, **attrs):
-        data = np.full((len(names), *shape), fill, dtype=dtype)
-        for s, selector in enumerate(names):
-            if selector in values:
-                data[s] = values[selector]
-        store.create(key(name), data.shape, (1, rows, *shape[1:]), dtype, fill,
-                     ("selector", *dims), **attrs)[...] = data
-
-    per_selector("order", evaluation.order, ("instance", "step"), (n, k), "int32", -1,
-                 long_name="columns tried, in order (-1: no try)")
-    per_selector("first_feasible_step", evaluation.first_feasible_step, ("instance",), (n,),
-                 "int32", -1, long_name="0-based step of the first feasible try (-1: none)")
-    per_selector("first_feasible_time", evaluation.first_feasible_time, ("instance",), (n,),
-                 "float64", np.nan, long_name="time to the first feasible plan (NaN: none)",
-                 units=TIME_UNITS)
-    per_selector("best_score", evaluation.best_score, ("instance", "time"), (n, g), "float64",
-                 np.nan, long_name="best score found by each time", units=score_units)
-    store.create(key("eligible"), (n,), (rows,), "bool", False, ("instance",),
-                 long_name="the instance has a feasible constraint")[...] = evaluation.eligible
-    store.create(key("optimal_score"), (n,), (rows,), "float64", np.nan, ("instance",),
-                 long_name="the instance's best score", units=score_units)[...] = \
-        evaluation.optimal_score
+                     **EVALUATION_COORDS[name])[...] = values
+    lengths = dict(zip(list(EVALUATION_COORDS)[1:], (n, k, g), strict=True))
+    for name, spec in EVALUATION_ARRAYS.items():
+        attrs = {**spec.attrs, **({"units": score_units} if spec.scored else {})}
+        values = getattr(evaluation, name)
+        if spec.dims[0] == SELECTOR:
+            shape = tuple(lengths[d] for d in spec.dims[1:])
+            data = np.full((len(names), *shape), spec.fill, dtype=spec.dtype)
+            for s, selector in enumerate(names):
+                if selector in values:
+                    data[s] = values[selector]
+            chunks = (1, rows, *shape[1:])
+        else:
+            data, chunks = values, (rows,)
+        store.create(key(name), data.shape, chunks, spec.dtype, spec.fill, spec.dims,
+                     **attrs)[...] = data
 
 
 def read(store: ScoreStore) -> StoredEvaluation:
     """The stored evaluation of a store whose stage ``evaluate`` finished (any layout)."""
-    if not store.has(key("selector")):
+    if not store.has(key(SELECTOR)):
         return _read_groups(store)
-    names = [str(s) for s in store.array(key("selector"))[...]]
+    names = [str(s) for s in store.array(key(SELECTOR))[...]]
     arrays = {name: store.array(key(name))[...] for name in
-              ("order", "first_feasible_step", "first_feasible_time", "best_score")}
+              (ORDER, FIRST_FEASIBLE_STEP, FIRST_FEASIBLE_TIME, BEST_SCORE)}
 
     def per_selector(name, selectors):
         return {s: arrays[name][names.index(s)] for s in selectors}
     learnt = [s for s in names if s != RAWPLANNER]
     return StoredEvaluation(
         selectors=names,
-        time_grid=store.array(key("time"))[...],
-        eligible=store.array(key("eligible"))[...],
-        optimal_score=store.array(key("optimal_score"))[...],
-        first_feasible_time=per_selector("first_feasible_time", names),
-        best_score=per_selector("best_score", names),
-        first_feasible_step=per_selector("first_feasible_step", learnt),
-        order=per_selector("order", learnt))
+        time_grid=store.array(key(EVALUATION_TIME))[...],
+        eligible=store.array(key(ELIGIBLE))[...],
+        optimal_score=store.array(key(OPTIMAL_SCORE))[...],
+        first_feasible_time=per_selector(FIRST_FEASIBLE_TIME, names),
+        best_score=per_selector(BEST_SCORE, names),
+        first_feasible_step=per_selector(FIRST_FEASIBLE_STEP, learnt),
+        order=per_selector(ORDER, learnt))
 
 
 def _read_groups(store: ScoreStore) -> StoredEvaluation:
@@ -121,24 +132,24 @@ def _read_groups(store: ScoreStore) -> StoredEvaluation:
 
     def read_each(what, selectors):
         return {name: store.array(key(f"{name}/{what}"))[...] for name in selectors}
-    time_grid = store.array(key("time_grid"))[...]
-    best = read_each("best_score", learnt)
+    time_grid = store.array(key(TIME_GRID))[...]
+    best = read_each(BEST_SCORE, learnt)
     if RAWPLANNER in names:
-        raw = (store.array(result_key("raw", name))[...] for name in ("feasible", "time",
+        raw = (store.array(result_key(RAW, name))[...] for name in ("feasible", "time",
                                                                        "length"))
         best[RAWPLANNER] = raw_curve(*raw, time_grid, float(info["failure_value"]))
     return StoredEvaluation(
-        selectors=names, time_grid=time_grid, eligible=store.array(key("eligible"))[...],
-        optimal_score=store.array(key("optimal_score"))[...],
-        first_feasible_time=read_each("first_feasible_time", names), best_score=best,
-        first_feasible_step=read_each("first_feasible_step", learnt),
-        order=read_each("order", learnt))
+        selectors=names, time_grid=time_grid, eligible=store.array(key(ELIGIBLE))[...],
+        optimal_score=store.array(key(OPTIMAL_SCORE))[...],
+        first_feasible_time=read_each(FIRST_FEASIBLE_TIME, names), best_score=best,
+        first_feasible_step=read_each(FIRST_FEASIBLE_STEP, learnt),
+        order=read_each(ORDER, learnt))
 
 
 def record(store: ScoreStore) -> dict:
     """What the evaluate stage records of what it wrote: the digest of each array's values
     (``outputs``) and each node's metadata document (``metadata``, checked by
-    :mod:`pipeline.metadata`)."""
+    :mod:`pipeline.store.metadata`)."""
     keys = store.arrays_under(GROUP)
     return {"outputs": {k: f"{digest(store.array(k)[...]):016x}" for k in keys},
             "metadata": {k: store.document(k) for k in (GROUP, *keys)}}

@@ -23,7 +23,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-GROUP = "integrity"
+from pipeline.store.layout import INTEGRITY
+
+GROUP = INTEGRITY
 NOT_RECORDED = 0
 
 

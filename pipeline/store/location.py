@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import urlsplit
 
-from pipeline.errors import LocationError
-from pipeline.storage_errors import translated
+from pipeline.store.errors import LocationError
+from pipeline.store.storage_errors import translated
 
 #: botocore settings for S3 unless configured (``store.storage_options.config_kwargs``, or
 #: ``AWS_RETRY_MODE``/``AWS_MAX_ATTEMPTS`` for retries): AWS's "standard" retry mode (3

@@ -24,16 +24,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline import evaluation_store, integrity, layout
-from pipeline.integrity import digest
-from pipeline.store import (
+from pipeline.store import evaluation as evaluation_store
+from pipeline.store import integrity, layout
+from pipeline.store.blocks import block_region
+from pipeline.store.integrity import digest
+from pipeline.store.layout import (
     ENVIRONMENT,
     INSTANCE_SEED,
     INSTANCE_SPEC,
     RAW_CONSTRAINT,
     THETA,
-    ScoreStore,
-    block_region,
     feature_coord,
     index_coord,
     instance_coord,
@@ -41,6 +41,7 @@ from pipeline.store import (
     result_key,
     source_coord,
 )
+from pipeline.store.score_store import ScoreStore
 
 
 def migrate(store: ScoreStore, domain) -> list[str]:
@@ -128,7 +129,7 @@ def _record_columns(store: ScoreStore, group: str, names) -> None:
 
 def _order_columns(store: ScoreStore, group: str, columns: list[str]) -> None:
     """Put ``group``'s integrity table in the column order of the layout (that of a store
-    made by this version, which :mod:`pipeline.metadata` checks it against): the recorded
+    made by this version, which :mod:`pipeline.store.metadata` checks it against): the recorded
     digests move with their names; a column the layout adds is recorded from the current
     values of recorded blocks."""
     names = list(store.layout(group).names)
