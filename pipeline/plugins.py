@@ -1,15 +1,16 @@
 """Domains and planners from other packages, found through Python entry points.
 
 A package adds a domain or a planner by declaring an entry point in one of the groups below
-(in its ``pyproject.toml``), whose value is ``"module:Class"``: for a domain its config
-schema, in a light module, whose ``domain_class`` names the Domain subclass
-(:mod:`pipeline.domains`); for a planner its class:
+(in its ``pyproject.toml``), whose value is ``"module:Class"``: the plug-in's config schema,
+in a light module (one that imports neither a simulator nor a planning library: it is
+imported whenever the pipeline registers its configs), whose ``domain_class`` or
+``planner_class`` names the class that does the work, imported only when it is used:
 
     [project.entry-points."box_planning.domains"]
     shelf = "my_package.shelf_schema:ShelfConfig"
 
     [project.entry-points."box_planning.planners"]
-    lazy_rrt = "my_package.lazy:LazyRRT"
+    lazy_rrt = "my_package.lazy_settings:LazyRRTSettings"
 
 Nothing is imported to list the names: the installed packages' metadata is read once per
 process, and a plug-in's module is imported only when its name is asked for (as xarray finds
@@ -21,6 +22,7 @@ classes such an entry point must name.
 from __future__ import annotations
 
 import functools
+import importlib
 from importlib.metadata import entry_points
 
 #: entry-point group of each kind of plug-in (named after this distribution, box-planning)
@@ -37,3 +39,9 @@ def plugin_targets(kind: str) -> dict[str, str]:
 def registry(kind: str, builtins: dict[str, str]) -> dict[str, str]:
     """The built-in names of ``kind`` and the installed plug-ins' (built-ins win)."""
     return {**plugin_targets(kind), **builtins}
+
+
+def load(target: str):
+    """The object a ``"module:Name"`` target names (its module imported)."""
+    module, name = target.split(":")
+    return getattr(importlib.import_module(module), name)

@@ -150,6 +150,7 @@ def test_a_stand_in_and_a_planner_given_common_settings_get_their_own_defaults()
 
 PLUGIN = '''
 from dataclasses import dataclass
+from typing import ClassVar
 
 from pipeline.planning.rrt_connect import RRTConnect
 from pipeline.planning.settings import RRTConnectSettings
@@ -157,6 +158,8 @@ from pipeline.planning.settings import RRTConnectSettings
 
 @dataclass
 class HalfSettings(RRTConnectSettings):
+    planner_class: ClassVar[str] = "half_rrt_plugin:HalfRRT"
+
     name: str = "half_rrt"
     fraction: float = 0.5
 
@@ -190,8 +193,8 @@ def plugin(tmp_path):
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: half-rrt\nVersion: 0.1\n")
     (info / "entry_points.txt").write_text(textwrap.dedent("""\
         [box_planning.planners]
-        half_rrt = half_rrt_plugin:HalfRRT
-        rrt_connect = half_rrt_plugin:HalfRRT
+        half_rrt = half_rrt_plugin:HalfSettings
+        rrt_connect = half_rrt_plugin:HalfSettings
         """))
     env = pr.env()
     env["PYTHONPATH"] = f"{env['PYTHONPATH']}:{site}"

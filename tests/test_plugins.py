@@ -1,8 +1,9 @@
-"""Domains from other packages (:mod:`pipeline.plugins`): the example plug-in package
-``examples/box-example-plugin`` (domain ``slalom``), installed next to this one, runs like a
-built-in domain: ``stage=all`` writes a store that resumes, evaluates and reports; its keys
-are checked up front with the same refusals; its domain module is imported only when it is
-used.  (The domain × planner contract suite checks it too: tests/test_domain_contract.py.)"""
+"""Domains and planners from other packages (:mod:`pipeline.plugins`): the example plug-in
+package ``examples/box-example-plugin`` (domain ``slalom``, planner ``biased_rrt``),
+installed next to this one, runs like the built-in ones: ``stage=all`` writes a store that
+resumes, evaluates and reports; their keys are checked up front with the same refusals;
+their modules are imported only when they are used.  (The domain × planner contract suite
+checks them too: tests/test_domain_contract.py.)"""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from pipeline.plugins import plugin_targets
 from tests import pipeline_runs as pr
 from tests.test_bad_inputs import bad_input, composed
 
-if "slalom" not in plugin_targets("domain"):
+if "slalom" not in plugin_targets("domain") or "biased_rrt" not in plugin_targets("planner"):
     pytest.skip("the example plug-in is not installed (pip install -e examples/box-example-plugin)",
                 allow_module_level=True)
 
@@ -77,22 +78,48 @@ from tests.test_bad_inputs import composed
 assert "slalom" in domain_names()
 validate(composed("domain=slalom", "stage=instances", "instances.n=10"), available=None)
 validate(composed("domain=planar", "stage=instances", "instances.n=10"), available=None)
-print(sorted(m for m in sys.modules if m.startswith("box_example")))
+print(sorted(m for m in sys.modules if m.startswith("box_example")), "ompl" in sys.modules)
 from pipeline.domains import load_domain
 load_domain("slalom")
 print(sorted(m for m in sys.modules if m.startswith("box_example")))
+load_domain("slalom", planner="biased_rrt").planner_for(object)
+print(sorted(m for m in sys.modules if m.startswith("box_example")), "ompl" in sys.modules)
 """
 
 
-def test_the_plug_in_domain_module_is_imported_only_when_the_domain_is_used():
-    """Listing, registering and validating read its schema only (a light module)."""
+def test_the_plug_in_modules_are_imported_only_when_used():
+    """Listing, registering and validating read the schemas only (light modules): neither
+    the domain's module nor the planner's (nor OMPL) until each is used."""
     out = subprocess.run([sys.executable, "-c", LAZY], capture_output=True, text=True,
                          env=pr.env(), check=True).stdout.splitlines()
-    assert out == ["['box_example', 'box_example.schema']",
-                   "['box_example', 'box_example.schema', 'box_example.slalom']"]
+    light = ["box_example", "box_example.planner_settings", "box_example.schema"]
+    assert out == [f"{light} False", str(light + ["box_example.slalom"]),
+                   f"{sorted(light + ['box_example.slalom', 'box_example.biased_rrt'])} True"]
 
 
 def test_a_plug_in_domain_composes_with_its_schema_defaults():
     cfg = composed("domain=slalom", "domain.pillars_max=3")
     assert cfg.domain.name == "slalom" and cfg.domain.pillars_max == 3
     assert cfg.domain.door_width == 1.5 and np.isclose(cfg.domain.size, 10.0)
+
+
+def test_a_plug_in_planner_plans_by_name_resumes_and_checks_its_keys(tmp_path):
+    store = tmp_path / "biased.zarr"
+    first = pipeline(tmp_path, "stage=generate", "planner=biased_rrt", "planner.goal_bias=0.3",
+                     f"store.path={store}")
+    assert first.returncode == 0, first.stderr + first.stdout
+    import zarr
+
+    identity = zarr.open_group(store, mode="r").attrs["identity"]["planner"]
+    assert identity["name"] == "biased_rrt" and identity["goal_bias"] == 0.3
+    made = pr.matrix(store)
+    assert made["feasible"].any()
+    again = pipeline(tmp_path, "stage=generate", "planner=biased_rrt", "planner.goal_bias=0.3",
+                     f"store.path={store}")
+    assert "scores: already complete" in again.stdout, again.stdout + again.stderr
+    assert pr.same_matrix(pr.matrix(store), made)
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    bad_input(pipeline(bad, "stage=generate", "planner=biased_rrt", "planner.goal_bias=2",
+                       f"store.path={bad / 's.zarr'}"), "planner.goal_bias")
+    assert list(bad.iterdir()) == []

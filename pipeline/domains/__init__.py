@@ -14,8 +14,6 @@ simulator and no planner.
 
 from __future__ import annotations
 
-import importlib
-
 from pipeline.domains.base import (
     ConstraintSet,
     Domain,
@@ -25,7 +23,7 @@ from pipeline.domains.base import (
     constraint_row,
 )
 from pipeline.domains.specs import InstanceError, finite_rows, require
-from pipeline.plugins import registry
+from pipeline.plugins import load, registry
 from pipeline.yaml_configs import CONF_DIR, load_yaml_config, planner_settings
 
 #: The built-in domains: name -> "module:Schema" (see the module docstring).
@@ -42,21 +40,16 @@ def domain_names() -> list[str]:
     return list(registry("domain", DOMAINS))
 
 
-def _load(target: str):
-    module, name = target.split(":")
-    return getattr(importlib.import_module(module), name)
-
-
 def domain_schema(name: str) -> type:
     """The config schema of domain ``name`` (imports its schema module only)."""
     known = registry("domain", DOMAINS)
     if name not in known:
         raise ValueError(f"unknown domain {name!r}; known domains: {', '.join(sorted(known))}")
-    return _load(known[name])
+    return load(known[name])
 
 
 def domain_class(name: str) -> type[Domain]:
-    return _load(domain_schema(name).domain_class)
+    return load(domain_schema(name).domain_class)
 
 
 def has_yaml(name: str) -> bool:

@@ -10,10 +10,8 @@ docs/architecture.md.
 
 from __future__ import annotations
 
-import importlib
-
 from pipeline.planning.settings import COLLISION, SETTINGS, PlannerSettings, convert
-from pipeline.plugins import registry
+from pipeline.plugins import load, registry
 
 #: name -> "module:class" of the built-in planners (plug-ins: :func:`planners`)
 PLANNERS = {
@@ -25,25 +23,30 @@ PLANNERS = {
 
 
 def planners() -> dict[str, str]:
-    """name -> "module:class" of every planner: the built-in ones and the installed
-    plug-ins' (read once per process, without importing them; a built-in name wins)."""
+    """name -> "module:class" of every planner: the built-in ones (their Planner class) and
+    the installed plug-ins' (their settings class, whose ``planner_class`` names the
+    Planner); read once per process, nothing imported; a built-in name wins."""
     return registry("planner", PLANNERS)
 
 
-def planner_class(name: str):
+def _known(name: str) -> str:
     known = planners()
     if name not in known:
         raise ValueError(f"unknown planner {name!r}; known: {', '.join(known)}")
-    module, cls = known[name].split(":")
-    return getattr(importlib.import_module(module), cls)
+    return known[name]
+
+
+def planner_class(name: str):
+    if name in PLANNERS:
+        return load(PLANNERS[name])
+    return load(settings_class(name).planner_class)
 
 
 def settings_class(name: str) -> type[PlannerSettings]:
-    """The settings class (schema) of planner ``name``: a built-in's without importing the
-    planner, a plug-in's from its class's ``settings_class``."""
-    if name in SETTINGS and name in PLANNERS:
-        return SETTINGS[name]
-    return planner_class(name).settings_class
+    """The settings class (schema) of planner ``name``, without importing the planner: a
+    built-in's from :data:`SETTINGS`, a plug-in's from its entry point."""
+    target = _known(name)
+    return SETTINGS[name] if name in PLANNERS else load(target)
 
 
 def plans_nothing(settings: PlannerSettings) -> bool:
