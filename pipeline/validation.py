@@ -317,9 +317,10 @@ def report_paths(c: dict) -> list[Path]:
 
 def run_store(c: dict) -> Path:
     """This run's store (as :class:`pipeline.stages.Run` resolves it)."""
+    from pipeline.planning.settings import planner_label
     from pipeline.store import default_path
 
-    path = c["store"]["path"] or default_path(c["domain"]["name"], c["planner"]["name"],
+    path = c["store"]["path"] or default_path(c["domain"]["name"], planner_label(c["planner"]),
                                               c["seed"])
     return Path(path).expanduser().absolute()
 

@@ -25,7 +25,7 @@ from pipeline.planning.registry import make_planner, settings_class
 from pipeline.planning.rrt_connect import RRTConnect
 from pipeline.planning.trajopt import TrajOpt, TrajOptOptions
 from tests import pipeline_runs as pr
-from tests.test_bad_inputs import bad_input
+from tests.test_bad_inputs import bad_input, composed
 
 #: the planner part of identities made by the code before per-planner settings (7ee6b00)
 OLD_PLANNER = {"max_checks": 20000, "wall_cap_s": 10.0, "resolution": 0.01, "range": 0.0,
@@ -275,3 +275,14 @@ def test_flat_settings_as_old_stores_record_them_still_make_a_domain():
     assert domain.planner == S.RRTConnectSettings()
     with pytest.raises(ValueError, match="trajopt_waypoint"):  # a typo is still refused
         load_domain("planar", planner={"name": "rrt_connect", "trajopt_waypoint": 3})
+
+
+def test_two_ompl_algorithms_get_their_own_default_store_paths():
+    from pipeline.planning.settings import planner_label
+    from pipeline.validation import run_store
+
+    assert planner_label(S.OmplSettings(algorithm="RRTstar")) == "ompl-RRTstar"
+    assert planner_label({"name": "rrt_connect", "range": 0.0}) == "rrt_connect"
+    paths = {run_store(composed("planner=ompl", f"planner.algorithm={a}")).name
+             for a in ("RRT", "BITstar")}
+    assert paths == {"grasp_arm-ompl-RRT-seed0.zarr", "grasp_arm-ompl-BITstar-seed0.zarr"}

@@ -123,6 +123,15 @@ SETTINGS = {"rrt_connect": RRTConnectSettings, "ompl": OmplSettings,
             "trajopt": TrajOptSettings, "noop": NoopSettings}
 
 
+def planner_label(planner) -> str:
+    """A planner's name in default store paths and report labels: its ``name``, with its
+    ``algorithm`` where it has one (``ompl-RRTstar``), so two OMPL algorithms' stores do not
+    share a path.  ``planner``: settings or their mapping."""
+    get = planner.get if isinstance(planner, dict) else lambda k, d=None: getattr(planner, k, d)
+    algorithm = get("algorithm", None)
+    return f"{get('name')}-{algorithm}" if algorithm else get("name")
+
+
 def own_settings(settings_class: type, mapping: dict) -> dict:
     """``mapping`` (planner settings as a store's identity or a replay record holds them)
     without the keys that other built-in planners declare and ``settings_class`` does not:

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.evaluation import own_constraints
+from pipeline.planning.settings import planner_label
 from pipeline.store import ScoreStore, StoreError
 from pipeline.store import evaluation as evaluation_store
 from pipeline.store.layout import FEASIBLE, LENGTH, RAW, TIME
@@ -53,7 +54,7 @@ class StoreResults:
 
     @property
     def label(self) -> str:
-        base = f"{self.domain} / {self.planner}"
+        base = f"{self.domain} / {planner_label(self.spec['planner'])}"
         return f"{base} ({self.detail})" if self.detail else base
 
     @property

@@ -19,6 +19,7 @@ from pipeline import configs, environment, validation
 from pipeline.context import StageContext
 from pipeline.domains import load_domain
 from pipeline.execution import Task, dask_client, run_tasks
+from pipeline.planning.settings import planner_label
 from pipeline.provenance import Provenance
 from pipeline.stages.todo import TODO
 from pipeline.store import (
@@ -54,8 +55,8 @@ class Run:
         self.domain_spec = domain_spec_of(self.plain)
         name = self.domain_spec["name"]
         self.domain = load_domain(name, planner=planner, **self.domain_spec["config"])
-        self.location = locate(cfg.store.path or default_path(name, planner.name, cfg.seed),
-                               self.plain["store"].get("storage_options"))
+        path = cfg.store.path or default_path(name, planner_label(planner), cfg.seed)
+        self.location = locate(path, self.plain["store"].get("storage_options"))
         self.path = self.location.path
         self.identity = configs.identity(cfg)
         self.identity_hash = configs.config_hash(self.identity)
