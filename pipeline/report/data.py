@@ -50,11 +50,12 @@ class StoreResults:
 
     @property
     def planner(self) -> str:
-        return self.spec["planner"]["name"]
+        """The planner's name, with its algorithm where it has one (``ompl-RRTstar``)."""
+        return planner_label(self.spec["planner"])
 
     @property
     def label(self) -> str:
-        base = f"{self.domain} / {planner_label(self.spec['planner'])}"
+        base = f"{self.domain} / {self.planner}"
         return f"{base} ({self.detail})" if self.detail else base
 
     @property
