@@ -72,6 +72,9 @@ def config_error(args: list[str]) -> str | None:
     ``outputs/`` folder."""
     if any(a.startswith("-") for a in args):
         return None
+    broken = plugin_problem(args)
+    if broken:
+        return broken
     from hydra import compose, initialize_config_dir
 
     from pipeline.store import StoreError
@@ -87,6 +90,18 @@ def config_error(args: list[str]) -> str | None:
         check_store(cfg)
     except (StoreError, ValueError) as exc:
         return str(exc)
+    return None
+
+
+def plugin_problem(args: list[str]) -> str | None:
+    """Why the domain or planner plug-in that ``args`` choose cannot be loaded, if it
+    cannot (:func:`pipeline.plugins.problem`)."""
+    from pipeline.plugins import problem
+
+    for arg in args:
+        group, _, value = arg.partition("=")
+        if group in ("domain", "planner") and problem(group, value):
+            return problem(group, value)
     return None
 
 

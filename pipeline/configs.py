@@ -18,6 +18,7 @@ from omegaconf import MISSING, OmegaConf
 
 from pipeline.domains import domain_names, domain_schema, has_yaml
 from pipeline.planning.settings import SETTINGS, PlannerSettings, keys_of
+from pipeline.plugins import problem
 from pipeline.yaml_configs import CONF_DIR, load_yaml_config, planner_settings
 
 __all__ = ["CONF_DIR", "Config", "PlannerSettings", "comparable", "differing_keys",
@@ -178,6 +179,8 @@ def register_configs() -> None:
         cs.store(group="planner", name=name, node=schema)  # the option itself (no YAML)
     cs.store(group="cluster", name="cluster_schema", node=ClusterConfig)
     for name in domain_names():
+        if problem("domain", name):  # a broken plug-in: refused where it is asked for
+            continue
         schema = domain_schema(name)
         cs.store(group="domain", name=f"{name}_schema", node=schema)
         if not has_yaml(name):  # e.g. a plug-in's domain: its schema's defaults are the option
@@ -193,7 +196,7 @@ def plugin_planner_schemas() -> dict[str, type]:
     from pipeline.plugins import plugin_targets
 
     return {name: settings_class(name) for name in plugin_targets("planner")
-            if name not in SETTINGS}
+            if name not in SETTINGS and not problem("planner", name)}
 
 
 #: The command's name in its help (the console script; ``python -m pipeline`` is the same).

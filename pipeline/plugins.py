@@ -45,3 +45,21 @@ def load(target: str):
     """The object a ``"module:Name"`` target names (its module imported)."""
     module, name = target.split(":")
     return getattr(importlib.import_module(module), name)
+
+
+@functools.cache
+def problem(kind: str, name: str) -> str | None:
+    """Why the installed plug-in ``name`` of ``kind`` cannot be loaded (one line: its target
+    and the error), or None when it loads or is not a plug-in.  A broken plug-in is left out
+    of the configs, so it stops only the runs that ask for it (with this line), not every
+    run."""
+    target = plugin_targets(kind).get(name)
+    if target is None:
+        return None
+    try:
+        load(target)
+    except Exception as exc:  # noqa: BLE001 - whatever a third-party import raises
+        reason = (str(exc).strip().splitlines() or [""])[0]
+        return (f"the {kind} plug-in {name!r} ({GROUPS[kind]}: {target}) cannot be loaded: "
+                f"{type(exc).__name__}: {reason}")
+    return None

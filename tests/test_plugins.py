@@ -110,7 +110,8 @@ def test_a_plug_in_planner_plans_by_name_resumes_and_checks_its_keys(tmp_path):
     assert first.returncode == 0, first.stderr + first.stdout
     import zarr
 
-    identity = zarr.open_group(store, mode="r").attrs["identity"]["planner"]
+    root = zarr.open_group(store, mode="r", use_consolidated=False)
+    identity = root.attrs["identity"]["planner"]
     assert identity["name"] == "biased_rrt" and identity["goal_bias"] == 0.3
     made = pr.matrix(store)
     assert made["feasible"].any()
@@ -123,3 +124,34 @@ def test_a_plug_in_planner_plans_by_name_resumes_and_checks_its_keys(tmp_path):
     bad_input(pipeline(bad, "stage=generate", "planner=biased_rrt", "planner.goal_bias=2",
                        f"store.path={bad / 's.zarr'}"), "planner.goal_bias")
     assert list(bad.iterdir()) == []
+
+
+@pytest.fixture
+def broken_plugins(tmp_path):
+    """A package installed the way pip installs one whose entry points name modules that
+    cannot be imported (a domain and a planner)."""
+    info = tmp_path / "site" / "broken_plugin-0.1.dist-info"
+    info.mkdir(parents=True)
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: broken-plugin\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text(
+        "[box_planning.domains]\nbroken_domain = no_such_module:Schema\n\n"
+        "[box_planning.planners]\nbroken_planner = no_such_module:Settings\n")
+    env = pr.env()
+    env["PYTHONPATH"] = f"{env['PYTHONPATH']}:{tmp_path / 'site'}"
+    return env
+
+
+def test_a_broken_plug_in_stops_only_the_runs_that_ask_for_it(tmp_path, broken_plugins):
+    def run(domain="planar", planner="rrt_connect"):
+        return subprocess.run([sys.executable, "-m", "pipeline", f"domain={domain}",
+                               f"planner={planner}", "progress=false", "stage=instances",
+                               "instances.n=4", f"store.path={tmp_path / 's.zarr'}"],
+                              capture_output=True, text=True, cwd=tmp_path,
+                              env=broken_plugins, timeout=600)
+
+    fine = run()  # other runs are not disturbed
+    assert fine.returncode == 0, fine.stderr
+    for res, group in ((run(domain="broken_domain"), "domain"),
+                       (run(planner="broken_planner"), "planner")):
+        bad_input(res, f"{group} plug-in 'broken_{group}'", "no_such_module:",
+                  "ModuleNotFoundError")
