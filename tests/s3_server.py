@@ -1,6 +1,8 @@
-"""A real S3-compatible server process for tests (moto's standalone ``moto_server``) on
-127.0.0.1, configured the way AWS users expect (environment variables), and readers of
-stores in it.  Test modules make their own fixture of :func:`serve` (module-scoped)."""
+"""A real S3-compatible server process for tests on 127.0.0.1: moto's server app, as its
+standalone ``moto_server`` runs it, handling one request at a time
+(tests/moto_atomic_server.py), configured the way AWS users expect (environment
+variables), and readers of stores in it.  Test modules make their own fixture of
+:func:`serve` (module-scoped)."""
 
 from __future__ import annotations
 
@@ -9,7 +11,9 @@ import os
 import shutil
 import socket
 import subprocess
+import sys
 import time
+from pathlib import Path
 
 import pytest
 import zarr
@@ -29,12 +33,13 @@ def serve():
     :data:`BUCKET`, also set in this process's environment (for its readers: zarr, ``box
     status``, ``box export``) while the server runs.  Skips the test when moto or s3fs is
     not installed."""
-    server = shutil.which("moto_server")
-    if server is None:
+    if shutil.which("moto_server") is None:
         pytest.skip('moto_server is not installed (pip install -e ".[test]")')
     pytest.importorskip("s3fs", reason='s3fs is not installed (pip install -e ".[test]")')
     port = free_port()
-    proc = subprocess.Popen([server, "-H", "127.0.0.1", "-p", str(port)],
+    # moto's server app, one request at a time: S3's atomic conditional writes (see there)
+    proc = subprocess.Popen([sys.executable, str(Path(__file__).with_name(
+        "moto_atomic_server.py")), "127.0.0.1", str(port)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     env = {"AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}", "AWS_ACCESS_KEY_ID": "testing",
            "AWS_SECRET_ACCESS_KEY": "testing", "AWS_DEFAULT_REGION": "us-east-1"}
