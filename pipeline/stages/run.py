@@ -99,12 +99,10 @@ class Run:
                 check_is_ours(self.location)  # refuse before touching anything near it
             local.parent.mkdir(parents=True, exist_ok=True)
         lock = self._stack.enter_context(StoreLock(self.location))
-        if not self.location.is_empty():
-            check_is_ours(self.location)
-            self._adopt(ScoreStore(self.location, read_only=True).attrs.get("identity"))
         self.store = ScoreStore.prepare(
             self.location, self.identity, self.recorded_config(),
             overwrite=self.cfg.store.mode is configs.StoreMode.overwrite)
+        self._adopt(self.store.attrs.get("identity"))
         self.store.fence = lock.check
         note = metadata.repair_layout_version(self.store)
         if note:

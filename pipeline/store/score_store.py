@@ -172,7 +172,9 @@ class ScoreStore(Readers, BlockWrites, Verification):
 
     @classmethod
     def prepare(cls, path, identity: dict, config: dict, overwrite: bool) -> ScoreStore:
-        """Create the store, or check that the existing one was made with ``identity``.
+        """Create the store, or check that the existing one was made with ``identity`` (or
+        one that differs only in keys its planner does not declare: a store made before
+        per-planner settings, kept as it is; the caller adopts the stored identity).
 
         The caller holds the :class:`StoreLock`.  A store with a different identity is
         refused with the differing keys named, or replaced when ``overwrite``; anything
@@ -185,10 +187,10 @@ class ScoreStore(Readers, BlockWrites, Verification):
             check_is_ours(location)
             store = cls(location)
             stored = store.attrs.get("identity")
-            if stored == identity:
+            keys = differing_keys(stored or {}, identity)  # as comparable: configs.comparable
+            if stored is not None and not keys:
                 return store  # the caller migrates an older layout (pipeline/store/migrate.py)
             if not overwrite:
-                keys = differing_keys(stored or {}, identity)
                 raise StoreError(
                     f"store {location} was made with a different config (differing keys: "
                     f"{', '.join(keys)}); use another store.path, or store.mode=overwrite "
