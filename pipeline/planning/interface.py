@@ -10,6 +10,7 @@ import numpy as np
 
 from pipeline.planning.base import Budget, RobotModel, certified
 from pipeline.planning.result import PlanResult
+from pipeline.planning.resumable import PlanningTry, WholeTry
 from pipeline.planning.settings import PlannerSettings, convert
 
 
@@ -27,6 +28,9 @@ class Planner(abc.ABC):
     #: and leave RAWPLANNER (which needs real solutions) to ``stand_in``
     plans_nothing: ClassVar[bool] = False
     stand_in: ClassVar[str | None] = None
+    #: True when :meth:`start` gives a try that pauses at its allowance (a property where
+    #: it depends on the settings); False: the whole call runs in the first advance
+    resumable: ClassVar[bool] = False
 
     def __init__(self, settings: PlannerSettings | None = None):
         """``settings``: an instance of ``settings_class`` (other settings give their
@@ -37,9 +41,23 @@ class Planner(abc.ABC):
         """A check budget for one call, to share between the motions of a multi-leg call;
         make it once the scene is set for the call (``planner.collision=spheres`` reads
         the world now)."""
+        return Budget(self.check_model(robot), self.settings.max_checks,
+                      self.settings.wall_cap_s)
+
+    def check_model(self, robot: RobotModel) -> RobotModel:
+        """The model that answers this planner's checks on ``robot``: with
+        ``planner.collision=spheres``, the robot's faster checks of the same answers (its
+        ``certified`` capability, which reads the world now), if any."""
         if getattr(self.settings, "collision", "exact") == "spheres":
-            robot = certified(robot)  # the robot's faster checks (same answers), if any
-        return Budget(robot, self.settings.max_checks, self.settings.wall_cap_s)
+            return certified(robot)
+        return robot
+
+    def start(self, robot: RobotModel, start: np.ndarray, goal: np.ndarray, seed: int,
+              budget: Budget | None = None) -> PlanningTry:
+        """:meth:`plan` as a try (:mod:`pipeline.planning.resumable`): this default cannot
+        pause and plans the whole call in its first advance; resumable planners override
+        it (and set :attr:`resumable`)."""
+        return WholeTry(lambda: self.plan(robot, start, goal, seed, budget))
 
     @abc.abstractmethod
     def plan(self, robot: RobotModel, start: np.ndarray, goal: np.ndarray, seed: int,

@@ -35,6 +35,7 @@ from ompl import util as ou
 from pipeline.planning.base import Budget, RobotModel
 from pipeline.planning.interface import Planner
 from pipeline.planning.result import PlanResult, Status, path_length
+from pipeline.planning.resumable import PlanningTry
 from pipeline.planning.settings import RRTConnectSettings
 from pipeline.planning.shortcut import shortcut
 
@@ -46,6 +47,11 @@ from pipeline.planning.shortcut import shortcut
 #: connecting any: they need a large budget or fewer samples.
 ALGORITHMS = ("RRTConnect", "RRT", "RRTstar", "InformedRRTstar", "SORRTstar", "BITstar",
               "AORRTC", "KPIECE1", "BKPIECE1", "LBKPIECE1", "FMT", "BFMT")
+
+#: the algorithms of :data:`ALGORITHMS` whose tries pause and resume with the result of
+#: the uninterrupted call (:class:`OmplSearch`; tests/test_resumable.py checks each); the
+#: others plan the whole call in a try's first advance
+RESUMABLE = ("RRTConnect",)
 
 _THREADED = ("grows its roadmap in a second thread, whose checks call back into Python: "
              "their order depends on thread timing (and here the call never returns)")
@@ -148,6 +154,9 @@ class OmplGeometric(Planner):
     shortcutting (``shortcut_attempts``; 0: none).  Subclasses implement :meth:`make`."""
 
     settings_class = RRTConnectSettings
+    #: OMPL's RRTConnect resumes exactly (:class:`OmplSearch`); a subclass making another
+    #: algorithm says whether it does
+    resumable = True
 
     def make(self, si) -> ob.Planner:
         """The OMPL planner for the space information ``si`` (called once per call, after
@@ -163,41 +172,133 @@ class OmplGeometric(Planner):
 
         ``seed`` (an int >= 0) fixes OMPL's and the shortcutter's random numbers.
         """
+        return OmplSearch(self, robot, start, goal, seed, budget).advance()
+
+    def start(self, robot: RobotModel, start, goal, seed: int,
+              budget: Budget | None = None):
+        """:meth:`plan` as a try that pauses between two iterations of OMPL's search
+        (:class:`OmplSearch`) when :attr:`resumable`, else one that plans the whole call
+        in its first advance."""
+        if not self.resumable:
+            return super().start(robot, start, goal, seed, budget)
+        return OmplSearch(self, robot, start, goal, seed, budget)
+
+
+class OmplSearch(PlanningTry):
+    """One call of an :class:`OmplGeometric` planner as a try: the end points' checks,
+    then OMPL's ``solve`` called again on the same planner object after each pause, then
+    shortcutting in the slice that found the path.
+
+    Why resuming gives the uninterrupted result (OMPL 2.0, checked on its sources for
+    RRTConnect): the trees, the tree to grow next (``startTree_``, a member since OMPL
+    1.6), the goal states drawn so far and the state sampler all live on the planner
+    object and survive between ``solve`` calls; a new ``solve`` adds no start state
+    again, and its per-call locals (the approximate solution, scratch states) do not steer
+    the search.  A pause is the termination condition returning true where the search
+    would have asked it and gone on, so no check is refused or repeated.  Random numbers:
+    OMPL gives every RNG object its own generator, seeded from a process-global seed
+    generator when the object is made; the seed is set and every object made (the state
+    sampler by the first ``solve``) in one slice, and drawing needs nothing global, so
+    other tries may run between the slices of this one.  The wall-clock cap counts the
+    time inside slices only.
+    """
+
+    def __init__(self, planner: OmplGeometric, robot: RobotModel, start, goal, seed: int,
+                 budget: Budget | None = None):
+        super().__init__()
         if seed < 0:
             raise ValueError(f"planning seed must be >= 0, got {seed}")
         lower, upper = np.asarray(robot.lower, float), np.asarray(robot.upper, float)
         if lower.shape != upper.shape or np.any(lower >= upper):
             raise ValueError("planner bounds: need lower < upper in every coordinate")
-        budget = budget if budget is not None else self.budget(robot)
-        t0 = time.perf_counter()
-        start = np.asarray(start, float)
-        goal = np.asarray(goal, float)
-        used0 = budget.used
-        for q, status in ((start, Status.START_IN_COLLISION), (goal, Status.GOAL_IN_COLLISION)):
-            if np.any(q < lower) or np.any(q > upper) or not budget.states_free(q[None]):
+        self.planner, self.seed = planner, seed
+        self.lower, self.upper = lower, upper
+        self.start, self.goal = np.asarray(start, float), np.asarray(goal, float)
+        self.budget = budget if budget is not None else planner.budget(robot)
+        self.used0 = self.budget.used
+        self._idle_since = time.perf_counter()
+        self._problem: _Problem | None = None
+
+    @property
+    def checks(self) -> int:
+        """Checks used so far."""
+        return self.budget.used - self.used0
+
+    def rebind(self, robot: RobotModel) -> None:
+        """Check on ``robot`` from now on: the same robot model remade (a domain's scene
+        was rebuilt or reloaded between two slices), which answers every check as before."""
+        self.budget.robot = self.planner.check_model(robot)
+
+    def _advance(self, allowance, now) -> PlanResult | None:
+        budget = self.budget
+        budget.deadline += now - self._idle_since  # the cap counts time inside slices
+        if self._problem is None:
+            ended = self._endpoints()
+            if ended is not None:
+                return ended
+            if np.array_equal(self.start, self.goal):
+                return self._found(self.start[None])
+        with quiet_ompl():
+            if self._problem is None:
+                self._problem = _Problem(self.planner, self.lower, self.upper, self.start,
+                                         self.goal, budget, self.seed)
+            path = self._problem.solve(self._stop(allowance))
+        if path is not None:
+            path = shortcut(path, budget, np.random.default_rng([self.seed, 1]),
+                            self.planner.settings.resolution,
+                            self.planner.settings.shortcut_attempts)
+            return self._found(path)
+        if budget.spent or budget.timed_out or not self._paused:
+            status = Status.TIMEOUT if budget.timed_out else Status.BUDGET_EXHAUSTED
+            return self._failed(status)
+        self._problem.forget_approximations()
+        self._idle_since = time.perf_counter()
+        return None
+
+    def _stop(self, allowance):
+        """The termination condition of one slice: the budget's, and the pause once the
+        try has used ``allowance`` checks (which sets ``_paused``)."""
+        budget = self.budget
+        self._paused = False
+        if allowance is None:
+            return budget.stop
+        cap = self.used0 + allowance
+
+        def stop() -> bool:
+            if budget.stop():
+                return True
+            self._paused = budget.used >= cap
+            return self._paused
+
+        return stop
+
+    def _endpoints(self) -> PlanResult | None:
+        """Check start and goal (a failed result, or None when both are free)."""
+        budget = self.budget
+        for q, status in ((self.start, Status.START_IN_COLLISION),
+                          (self.goal, Status.GOAL_IN_COLLISION)):
+            if (np.any(q < self.lower) or np.any(q > self.upper)
+                    or not budget.states_free(q[None])):
                 if budget.spent:  # an earlier leg used the whole budget: q was never checked
                     status = Status.BUDGET_EXHAUSTED
-                return self._result(status, budget, used0, t0)
-        if np.array_equal(start, goal):
-            path = start[None]
-        else:
-            with quiet_ompl():
-                path = self._solve(lower, upper, start, goal, budget, seed)
-            if path is None:
-                status = Status.TIMEOUT if budget.timed_out else Status.BUDGET_EXHAUSTED
-                return self._result(status, budget, used0, t0)
-            path = shortcut(path, budget, np.random.default_rng([seed, 1]),
-                            self.settings.resolution, self.settings.shortcut_attempts)
-        return PlanResult(Status.OK, path=path, length=path_length(path),
-                          checks=budget.used - used0, time=time.perf_counter() - t0)
+                return self._failed(status)
+        return None
 
-    def _result(self, status, budget, used0, t0) -> PlanResult:
-        return PlanResult(status, checks=budget.used - used0, time=time.perf_counter() - t0)
+    def _failed(self, status) -> PlanResult:
+        return PlanResult(status, checks=self.checks)
 
-    def _solve(self, lower, upper, start, goal, budget: Budget,
-               seed: int) -> np.ndarray | None:
+    def _found(self, path) -> PlanResult:
+        return PlanResult(Status.OK, path=path, length=path_length(path), checks=self.checks)
+
+
+class _Problem:
+    """OMPL's problem for one call: space, setup and planner, made once (the seed set
+    just before), solved again after each pause.  Holds every object OMPL calls back into."""
+
+    def __init__(self, planner: OmplGeometric, lower, upper, start, goal, budget: Budget,
+                 seed: int):
         ou.RNG.setSeed(ompl_seed(seed))
-        d = len(lower)
+        d = self.dim = len(lower)
         space = ob.RealVectorStateSpace(d)
         bounds = ob.RealVectorBounds(d)
         for i in range(d):
@@ -206,20 +307,30 @@ class OmplGeometric(Planner):
         space.setBounds(bounds)
         setup = og.SimpleSetup(space)
         si = setup.getSpaceInformation()
-        setup.setStateValidityChecker(lambda s: budget.states_free(np.array([s[0:d]])))
-        validator = EdgeValidator(si, budget, d, self.settings.resolution)
-        si.setMotionValidator(validator)
-        endpoints = []
+        self.valid = lambda s: budget.states_free(np.array([s[0:d]]))
+        setup.setStateValidityChecker(self.valid)
+        self.validator = EdgeValidator(si, budget, d, planner.settings.resolution)
+        si.setMotionValidator(self.validator)
+        self.endpoints = []
         for q in (start, goal):
             state = space.allocState()
             for i in range(d):
                 state[i] = float(q[i])
-            endpoints.append(state)
-        setup.setStartAndGoalStates(endpoints[0], endpoints[1])
-        setup.setPlanner(self.make(si))
-        self.prepare(setup)
-        setup.solve(ob.PlannerTerminationCondition(budget.stop))
-        if not setup.haveExactSolutionPath():
+            self.endpoints.append(state)
+        setup.setStartAndGoalStates(self.endpoints[0], self.endpoints[1])
+        setup.setPlanner(planner.make(si))
+        planner.prepare(setup)
+        self.space, self.setup = space, setup
+
+    def solve(self, stop) -> np.ndarray | None:
+        """Run (or go on with) the search until ``stop()``; the path once one is found."""
+        self.setup.solve(ob.PlannerTerminationCondition(stop))
+        if not self.setup.haveExactSolutionPath():
             return None
-        states = setup.getSolutionPath().getStates()
-        return np.array([s[0:d] for s in states])
+        d = self.dim
+        return np.array([s[0:d] for s in self.setup.getSolutionPath().getStates()])
+
+    def forget_approximations(self) -> None:
+        """Drop the approximate path a paused ``solve`` leaves in the problem (the
+        uninterrupted call has none there): only an exact one is ever read."""
+        self.setup.getProblemDefinition().clearSolutionPaths()

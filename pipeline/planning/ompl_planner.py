@@ -16,7 +16,12 @@ from __future__ import annotations
 
 from ompl import geometric as og
 
-from pipeline.planning.ompl_adapter import OmplGeometric, set_params, stop_at_first_solution
+from pipeline.planning.ompl_adapter import (
+    RESUMABLE,
+    OmplGeometric,
+    set_params,
+    stop_at_first_solution,
+)
 from pipeline.planning.settings import OmplSettings
 
 
@@ -25,6 +30,12 @@ class OmplPlanner(OmplGeometric):
 
     name = "ompl"
     settings_class = OmplSettings
+
+    @property
+    def resumable(self) -> bool:
+        """Whether ``start`` gives a try that pauses: the algorithms of
+        :data:`~pipeline.planning.ompl_adapter.RESUMABLE`."""
+        return self.settings.algorithm in RESUMABLE
 
     def make(self, si):
         planner = getattr(og, self.settings.algorithm)(si)
