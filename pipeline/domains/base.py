@@ -15,9 +15,10 @@ import numpy as np
 from pipeline.domains.specs import InstanceError, finite_rows, require
 from pipeline.planning import PlannerSettings, PlanResult, Status
 from pipeline.planning.registry import make_planner, plans_nothing
+from pipeline.planning.resumable import PlanningTry, WholeTry
 
-__all__ = ["ConstraintSet", "Domain", "Feature", "InstanceError", "RawResult", "RawSearch",
-           "constraint_row", "finite_rows", "require"]
+__all__ = ["ConstraintSet", "Domain", "EntryTry", "Feature", "InstanceError", "RawResult",
+           "RawSearch", "constraint_row", "finite_rows", "require"]
 
 
 @dataclass(frozen=True)
@@ -146,6 +147,28 @@ class Domain(abc.ABC):
         result.time = time.perf_counter() - t0
         return result
 
+    def start_try(self, instance, constraint, seed: int = 0) -> PlanningTry:
+        """π(ω, θ) as a try (:mod:`pipeline.planning.resumable`): ``advance(allowance)``
+        goes on until the call has used ``allowance`` checks in all (the ``checks`` its
+        result reports), and the result is :meth:`plan`'s however the checks are sliced.
+
+        (Not ``start``: that name is the planar domain's start configuration.)  Bad input
+        raises here, as in :meth:`plan`.  A domain whose call can pause returns
+        its own try from :meth:`_start`; this default cannot pause and makes the whole
+        call in the first advance, whatever the allowance.
+        """
+        inst = self.check_instance(instance)
+        theta = self.constraint(constraint)
+        entry = None if self.skips_plans else self._start(inst, theta, int(seed))
+        if entry is None:
+            return WholeTry(lambda: self.plan(instance, constraint, seed))
+        return entry
+
+    def _start(self, instance, constraint, seed: int) -> EntryTry | None:
+        """The domain's resumable try of π on a checked instance and constraint, or None
+        (the whole call in the first advance)."""
+        return None
+
     def attempt(self, inst, theta, seed: int) -> PlanResult:
         """π on a checked instance and constraint, a raised failure turned into ``error``
         (RAWPLANNER's searches call this)."""
@@ -202,6 +225,21 @@ class Domain(abc.ABC):
         """Release simulator clients this domain holds (its cached scene); it may be used
         again afterwards (a new client is made then)."""
         return None
+
+
+class EntryTry(PlanningTry):
+    """A domain's resumable π call (:meth:`Domain._start`): a raised failure becomes status
+    ``error``, as in :meth:`Domain.attempt`.  Subclasses implement :meth:`_slice`."""
+
+    def _advance(self, allowance, now) -> PlanResult | None:
+        try:
+            return self._slice(allowance)
+        except Exception as exc:  # noqa: BLE001 (an outcome, not a crash)
+            return PlanResult(Status.ERROR, error=repr(exc))
+
+    @abc.abstractmethod
+    def _slice(self, allowance: int | None) -> PlanResult | None:
+        """Go on until ``allowance`` checks in all (None: to the end); None when paused."""
 
 
 def constraint_row(constraint, domain: str) -> np.ndarray:

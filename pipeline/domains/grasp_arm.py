@@ -19,7 +19,14 @@ from pathlib import Path
 import numpy as np
 import pybullet as pb
 
-from pipeline.domains.base import ConstraintSet, Domain, Feature, RawSearch, constraint_row
+from pipeline.domains.base import (
+    ConstraintSet,
+    Domain,
+    EntryTry,
+    Feature,
+    RawSearch,
+    constraint_row,
+)
 from pipeline.domains.geometry import Box, sample_obstacles
 from pipeline.domains.grasps import (
     GRASP_FEATURES,
@@ -72,6 +79,8 @@ class GraspArmScene:
         self.instance = None
         self._bodies: list[int] = []
         self.target_id = None
+        #: how many times an instance was loaded (a paused try checks it was not replaced)
+        self.loads = 0
         if instance is not None:
             self.load(instance)
 
@@ -89,6 +98,7 @@ class GraspArmScene:
         for arm in self.arms:
             arm.set(P.HOME)
         self.instance = instance
+        self.loads += 1
 
     def set_configuration(self, q, arm: int = 0) -> None:
         self.arms[arm].set(q)
@@ -196,15 +206,10 @@ class GraspArmDomain(Domain):
             arm.set(P.HOME)
 
     def _plan_arm(self, inst: GraspArmInstance, g: Grasp, arm: P.Panda, seed: int) -> PlanResult:
-        pos, orn = self.pregrasp_pose(inst, g)
-        ik = solve_ik(arm, pos, orn, [seed, 7], self.config.ik_restarts, self.config.ik)
-        if not ik.found:
-            return PlanResult(ik.status, checks=ik.checks, step="ik")
-        result = self.motion.plan(arm, P.HOME, ik.q, seed=seed)
-        result.checks += ik.checks
-        if not result.feasible:
-            result.step = "arm_path"
-        return result
+        return GraspArmTry(self, inst, g, seed).step(arm, None)
+
+    def _start(self, inst: GraspArmInstance, g: Grasp, seed: int) -> GraspArmTry | None:
+        return GraspArmTry(self, inst, g, seed) if self.motion.resumable else None
 
     def _raw_search(self, inst: GraspArmInstance, seed: int) -> RawSearch:
         """(arm, grasp) pairs drawn without replacement until one is feasible."""
@@ -248,6 +253,52 @@ class GraspArmDomain(Domain):
         finally:
             scene.close()
         return save_png(rgb, path)
+
+
+class GraspArmTry(EntryTry):
+    """π(ω, θ) of grasp_arm in slices: the IK step runs whole in the first slice (its
+    checks, one per IK solution tried, count towards the allowance like the planner's),
+    then the arm path is the motion planner's try, resumed slice after slice.  Other calls
+    may use the domain's scene between two slices: each slice loads the instance again
+    (a no-op when it is still loaded) and, when the scene was rebuilt or reloaded, remakes
+    the robot model the planner checks on (the same answers)."""
+
+    def __init__(self, domain: GraspArmDomain, inst: GraspArmInstance, g: Grasp, seed: int):
+        super().__init__()
+        self.domain, self.inst, self.g, self.seed = domain, inst, g, seed
+        self.ik_checks = 0
+        self.search = None  # the arm path's planning try, once IK found a goal
+        self._scene_key = None
+
+    def _slice(self, allowance):
+        scene = self.domain.scene(self.inst)
+        arm = scene.arms[self.g.arm]
+        key = (id(scene), scene.loads)
+        try:
+            if self.search is not None and key != self._scene_key:
+                self.search.rebind(arm)
+            self._scene_key = key
+            return self.step(arm, allowance)
+        finally:  # the next call must find both arms at home
+            arm.set(P.HOME)
+
+    def step(self, arm: P.Panda, allowance: int | None) -> PlanResult | None:
+        """IK (first time only), then the arm path until ``allowance`` checks in all."""
+        d = self.domain
+        if self.search is None:
+            pos, orn = d.pregrasp_pose(self.inst, self.g)
+            ik = solve_ik(arm, pos, orn, [self.seed, 7], d.config.ik_restarts, d.config.ik)
+            if not ik.found:
+                return PlanResult(ik.status, checks=ik.checks, step="ik")
+            self.ik_checks = ik.checks
+            self.search = d.motion.start(arm, P.HOME, ik.q, seed=self.seed)
+        result = self.search.advance(None if allowance is None else allowance - self.ik_checks)
+        if result is None:
+            return None
+        result.checks += self.ik_checks
+        if not result.feasible:
+            result.step = "arm_path"
+        return result
 
 
 __all__ = ["GraspArmConfig", "GraspArmDomain"]

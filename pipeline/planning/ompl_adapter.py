@@ -51,7 +51,8 @@ ALGORITHMS = ("RRTConnect", "RRT", "RRTstar", "InformedRRTstar", "SORRTstar", "B
 #: the algorithms of :data:`ALGORITHMS` whose tries pause and resume with the result of
 #: the uninterrupted call (:class:`OmplSearch`; tests/test_resumable.py checks each); the
 #: others plan the whole call in a try's first advance
-RESUMABLE = ("RRTConnect",)
+RESUMABLE = ("RRTConnect", "RRT", "RRTstar", "InformedRRTstar", "SORRTstar", "BITstar",
+             "KPIECE1")
 
 _THREADED = ("grows its roadmap in a second thread, whose checks call back into Python: "
              "their order depends on thread timing (and here the call never returns)")
@@ -232,28 +233,28 @@ class OmplSearch(PlanningTry):
     def _advance(self, allowance, now) -> PlanResult | None:
         budget = self.budget
         budget.deadline += now - self._idle_since  # the cap counts time inside slices
-        if self._problem is None:
-            ended = self._endpoints()
-            if ended is not None:
-                return ended
-            if np.array_equal(self.start, self.goal):
-                return self._found(self.start[None])
         with quiet_ompl():
-            if self._problem is None:
+            if self._problem is None:  # the first slice: end points, then OMPL's problem
+                ended = self._endpoints()
+                if ended is not None:
+                    return ended
+                if np.array_equal(self.start, self.goal):
+                    return self._found(self.start[None])
                 self._problem = _Problem(self.planner, self.lower, self.upper, self.start,
                                          self.goal, budget, self.seed)
             path = self._problem.solve(self._stop(allowance))
-        if path is not None:
-            path = shortcut(path, budget, np.random.default_rng([self.seed, 1]),
-                            self.planner.settings.resolution,
-                            self.planner.settings.shortcut_attempts)
-            return self._found(path)
-        if budget.spent or budget.timed_out or not self._paused:
+        if path is None and not (budget.spent or budget.timed_out) and self._paused:
+            self._problem.forget_approximations()
+            self._idle_since = time.perf_counter()
+            return None
+        self._problem = _ENDED  # frees OMPL's objects now (a paused try keeps them)
+        if path is None:
             status = Status.TIMEOUT if budget.timed_out else Status.BUDGET_EXHAUSTED
             return self._failed(status)
-        self._problem.forget_approximations()
-        self._idle_since = time.perf_counter()
-        return None
+        path = shortcut(path, budget, np.random.default_rng([self.seed, 1]),
+                        self.planner.settings.resolution,
+                        self.planner.settings.shortcut_attempts)
+        return self._found(path)
 
     def _stop(self, allowance):
         """The termination condition of one slice: the budget's, and the pause once the
@@ -289,6 +290,10 @@ class OmplSearch(PlanningTry):
 
     def _found(self, path) -> PlanResult:
         return PlanResult(Status.OK, path=path, length=path_length(path), checks=self.checks)
+
+
+#: what an ended :class:`OmplSearch` holds instead of its problem (never advanced again)
+_ENDED = object()
 
 
 class _Problem:
