@@ -170,6 +170,50 @@ def test_interleaved_grasp_arm_entries_of_different_instances(grasp_arm):
             assert_same(resumed, whole)
 
 
+#: grasp_base constraints (base pose, grasp features, rounded): RAWPLANNER's on instances
+#: 0-3; entry (i, i) is feasible, most others find no IK solution
+BASE_GRASPS = ([-1.21, 1.4164, -0.7507, 0.7071, 0.7071, 0.0, 1.5708, -0.02],
+               [-0.7745, 1.6987, -2.829, -1.0, -0.0, 0.0, 0.7854, -0.02],
+               [0.5817, -0.9814, 2.8772, -0.7071, 0.7071, 0.0, 1.5708, -0.02],
+               [0.3993, 0.0655, -1.4384, -0.7071, 0.7071, 0.0, 1.5708, 0.02])
+
+
+def base_grasps(domain) -> list[list[float]]:
+    """:data:`BASE_GRASPS` with the exact features of the nearest of the domain's grasps."""
+    feats = np.stack([g.features[1:] for g in domain.grasps])
+    return [row[:3] + list(feats[np.argmin(np.abs(feats - row[3:]).sum(axis=1))])
+            for row in BASE_GRASPS]
+
+
+@pytest.mark.parametrize("max_checks", [20000, 500])
+def test_grasp_base_entries_resumed_equal_uninterrupted(max_checks):
+    domain = load_domain("grasp_base", planner={"name": "rrt_connect",
+                                                "max_checks": max_checks})
+    thetas = base_grasps(domain)
+    try:
+        statuses = set()
+        for i in range(4):
+            inst = domain.sample_instance(i)
+            for k, theta in enumerate(thetas):
+                whole = domain.plan(inst, theta, 10 * i + k)
+                statuses.add(whole.status)
+                for cap in CAPS:
+                    resumed, _ = sliced(partial(domain.start_try, inst, theta, 10 * i + k), cap)
+                    assert_same(resumed, whole)
+        expected = Status.OK if max_checks == 20000 else Status.BUDGET_EXHAUSTED
+        assert {expected, Status.NO_IK} <= statuses
+        # slices of tries on different instances alternate: the scene is reloaded and the
+        # base parked elsewhere between them
+        insts = [domain.sample_instance(i) for i in range(4)]
+        wholes = [domain.plan(insts[i], thetas[i], i) for i in range(4)]
+        for cap in (7, 200):
+            tries = [domain.start_try(insts[i], thetas[i], i) for i in range(4)]
+            for resumed, whole in zip(interleaved(tries, cap), wholes, strict=True):
+                assert_same(resumed, whole)
+    finally:
+        domain.close()
+
+
 def test_a_domain_without_its_own_try_plans_the_whole_entry_in_the_first_advance():
     domain = load_domain("planar")
     inst, via = domain.sample_instance(2), [5.0, 8.0]

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.domains.base import Domain, Feature, RawSearch, constraint_row
+from pipeline.domains.base import Domain, EntryTry, Feature, RawSearch, constraint_row
 from pipeline.domains.geometry import Box, sample_obstacles
 from pipeline.domains.grasps import GRASP_FEATURES, Grasp, grasp_set, pregrasp_pose
 from pipeline.domains.ik import solve_ik
@@ -147,15 +147,11 @@ class GraspBaseDomain(Domain):
 
     def _plan_at(self, robot, inst: GraspBaseInstance, theta: BaseGrasp,
                  seed: int) -> PlanResult:
-        robot.set_arm(P.HOME)
-        if robot.base_collides(theta.pose):
-            return PlanResult(Status.START_IN_COLLISION, checks=1, step="base")
-        ik = self._grasp_ik(robot, inst, theta, seed)
-        if not ik.found:
-            return PlanResult(ik.status, checks=1 + ik.checks, step="ik")
-        result = self._arm_path(robot, ik.q, seed)
-        result.checks += 1 + ik.checks
-        return result
+        return GraspBaseTry(self, inst, theta, seed).step(robot, None)
+
+    def _start(self, inst: GraspBaseInstance, theta: BaseGrasp,
+               seed: int) -> GraspBaseTry | None:
+        return GraspBaseTry(self, inst, theta, seed) if self.motion.resumable else None
 
     def _grasp_ik(self, robot, inst, theta: BaseGrasp, seed: int):
         """The IK step for θ's pre-grasp, the base already parked at θ's pose."""
@@ -248,6 +244,60 @@ class GraspBaseDomain(Domain):
                 poses=poses, base_path=None, extent=(-1.2, 2.0, -1.2, 1.8))
         finally:
             scene.close()
+
+
+class GraspBaseTry(EntryTry):
+    """π(ω, θ) of grasp_base in slices: parking the base (one check) and the IK step run
+    whole in the first slice (their checks count towards the allowance like the
+    planner's), then the arm path is the motion planner's try, resumed slice after slice.
+    Other calls may use the domain's scene between two slices: each later slice loads the
+    instance again (a no-op when it is still loaded), parks the base at θ's pose again and,
+    when the scene was rebuilt or reloaded, remakes the robot model the planner checks on
+    (the same answers)."""
+
+    def __init__(self, domain: GraspBaseDomain, inst: GraspBaseInstance, theta: BaseGrasp,
+                 seed: int):
+        super().__init__()
+        self.domain, self.inst, self.theta, self.seed = domain, inst, theta, seed
+        self.before_path = 0  # checks of the base and IK steps
+        self.search = None  # the arm path's planning try, once IK found a goal
+        self._scene_key = None
+
+    def _slice(self, allowance):
+        scene = self.domain.scene(self.inst)
+        robot = scene.robot
+        key = (id(scene), scene.loads)
+        try:
+            if self.search is not None:
+                robot.set_base(self.theta.pose)
+                if key != self._scene_key:
+                    self.search.rebind(UnladenArm(robot))
+            self._scene_key = key
+            return self.step(robot, allowance)
+        finally:  # the next call must find the arm at home
+            robot.set_arm(P.HOME)
+
+    def step(self, robot, allowance: int | None) -> PlanResult | None:
+        """Base and IK (first time only), then the arm path until ``allowance`` checks in
+        all."""
+        if self.search is None:
+            robot.set_arm(P.HOME)
+            if robot.base_collides(self.theta.pose):
+                return PlanResult(Status.START_IN_COLLISION, checks=1, step="base")
+            ik = self.domain._grasp_ik(robot, self.inst, self.theta, self.seed)
+            if not ik.found:
+                return PlanResult(ik.status, checks=1 + ik.checks, step="ik")
+            self.before_path = 1 + ik.checks
+            self.search = self.domain.motion.start(UnladenArm(robot), P.HOME, ik.q,
+                                                   seed=self.seed)
+        result = self.search.advance(None if allowance is None
+                                     else allowance - self.before_path)
+        if result is None:
+            return None
+        if not result.feasible:
+            result.step = "arm_path"
+        result.checks += self.before_path
+        return result
 
 
 def _instance_boxes(inst: GraspBaseInstance) -> list[tuple[Box, tuple]]:

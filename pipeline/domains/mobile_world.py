@@ -90,6 +90,8 @@ class MobileScene:
         self.robot_ids = (self.robot.platform, self.robot.body)
         self.key = None
         self.bodies: list[int] = []
+        #: how many times an instance was loaded (a paused try checks it was not replaced)
+        self.loads = 0
 
     def load(self, key, boxes: list[tuple[Box, tuple]]) -> list[int]:
         """Replace the instance boxes by ``boxes`` ((box, rgba) pairs) unless ``key`` (a
@@ -101,6 +103,7 @@ class MobileScene:
             self.bodies = [add_box(self.client_id, b.size, b.position, b.yaw, rgba=rgba)
                            for b, rgba in boxes]
             self.key = key
+            self.loads += 1
         return self.bodies
 
     def set_configuration(self, q) -> None:

@@ -16,7 +16,9 @@ builds a fresh space, setup and planner: the sampler, the nearest-neighbour stru
 the planner receive the same seeds whatever ran before in the process.  Everything else
 that is random here (shortcutting) draws from a numpy Generator seeded per call.  OMPL's
 log is silenced during a call (re-seeding logs an error by design) and restored after it,
-so importing or calling this module changes no global setting.  Planners that plan in a
+so importing or calling this module changes no global setting.  A call may also run as a
+try that pauses and resumes on the same planner object (:class:`OmplSearch`,
+:data:`RESUMABLE`; seeded once, when its problem is made).  Planners that plan in a
 second thread (PRM's roadmap) see a budget in an order no seed fixes, so they are refused
 (:data:`REFUSED`).
 """
