@@ -157,9 +157,9 @@ class OmplGeometric(Planner):
     shortcutting (``shortcut_attempts``; 0: none).  Subclasses implement :meth:`make`."""
 
     settings_class = RRTConnectSettings
-    #: OMPL's RRTConnect resumes exactly (:class:`OmplSearch`); a subclass making another
-    #: algorithm says whether it does
-    resumable = True
+    #: False: :meth:`start` plans the whole call in the first advance; a subclass whose
+    #: algorithm resumes exactly (:data:`RESUMABLE`, :class:`OmplSearch`) says so
+    resumable = False
 
     def make(self, si) -> ob.Planner:
         """The OMPL planner for the space information ``si`` (called once per call, after

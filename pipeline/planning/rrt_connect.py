@@ -16,6 +16,7 @@ class RRTConnect(OmplGeometric):
 
     name = "rrt_connect"
     settings_class = RRTConnectSettings
+    resumable = True  # OMPL's RRTConnect is in RESUMABLE
 
     def make(self, si):
         planner = og.RRTConnect(si)
