@@ -170,6 +170,22 @@ def test_interleaved_grasp_arm_entries_of_different_instances(grasp_arm):
             assert_same(resumed, whole)
 
 
+def test_a_grasp_arm_try_goes_on_after_the_domain_closed_its_scene():
+    domain = load_domain("grasp_arm")
+    try:
+        inst = domain.sample_instance(5)
+        whole = domain.plan(inst, 67, 5067)
+        attempt = domain.start_try(inst, 67, 5067)
+        allowance = 0
+        while (result := attempt.advance(allowance)) is None:
+            domain.close()  # the next slice finds a new pybullet client
+            allowance += 100
+        assert allowance > 0
+        assert_same(result, whole)
+    finally:
+        domain.close()
+
+
 #: grasp_base constraints (base pose, grasp features, rounded): RAWPLANNER's on instances
 #: 0-3; entry (i, i) is feasible, most others find no IK solution
 BASE_GRASPS = ([-1.21, 1.4164, -0.7507, 0.7071, 0.7071, 0.0, 1.5708, -0.02],

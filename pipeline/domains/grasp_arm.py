@@ -273,7 +273,7 @@ class GraspArmTry(EntryTry):
     def _slice(self, allowance):
         scene = self.domain.scene(self.inst)
         arm = scene.arms[self.g.arm]
-        key = (id(scene), scene.loads)
+        key = (scene, scene.loads)  # the scene object itself: a new one may reuse its id()
         try:
             if self.search is not None and key != self._scene_key:
                 self.search.rebind(arm)

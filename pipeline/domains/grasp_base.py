@@ -266,7 +266,7 @@ class GraspBaseTry(EntryTry):
     def _slice(self, allowance):
         scene = self.domain.scene(self.inst)
         robot = scene.robot
-        key = (id(scene), scene.loads)
+        key = (scene, scene.loads)  # the scene object itself: a new one may reuse its id()
         try:
             if self.search is not None:
                 robot.set_base(self.theta.pose)
