@@ -1,7 +1,9 @@
 """Resumable planning tries (issue 26, item 3): a call paused at check caps and resumed
-gives the result of one uninterrupted call (status, checks, path bit for bit, length), for
-RRT-Connect on the planar robot and on grasp_arm entries, also with other tries run
-between its slices; calls that cannot pause make the whole call in their first advance."""
+gives the result of one uninterrupted call (status, checks, failed step, path bit for bit,
+length), for RRT-Connect (and the other OMPL algorithms of RESUMABLE) on the planar robot
+and on grasp_arm and grasp_base entries, feasible and budget-exhausting, also with other
+tries run between its slices; calls that cannot pause make the whole call in their first
+advance."""
 
 from __future__ import annotations
 
@@ -70,7 +72,7 @@ def test_rrt_connect_resumed_equals_uninterrupted_on_the_planar_robot(max_checks
                 assert pauses >= 5
 
 
-def test_a_pause_comes_at_the_allowance_between_two_iterations():
+def test_a_paused_try_has_used_its_allowance_and_not_its_budget():
     planner = RRTConnect(RRTConnectSettings(collision="exact"))
     search = planner.start(scene(), START, GOAL, 1)
     for allowance in (3, 10, 40, 200):
