@@ -55,10 +55,10 @@ from box_core.selectors import TIME_FLOOR, Box, FoldContext, TrainingOutcomes, r
 from box_core.tries import FAILED, FEASIBLE, PAUSED, simulate
 
 #: Neighbour counts and cap quantiles the tuning chooses from (None: no cap)
-K_GRID = (5, 10, 20, 40, 80)
+K_GRID = (5, 10, 20, 30, 40, 80)
 CAP_GRID = (0.9, 0.95, 0.99, None)
 #: Leave-one-out within the training rows evaluates at most this many of them
-INNER_ROWS = 300
+INNER_ROWS = 1000
 #: Leave-one-out evaluation tunes the settings of held-out rows in this many groups
 GROUPS = 10
 
@@ -89,19 +89,35 @@ def standardised_distances(train: np.ndarray, query: np.ndarray,
     return out
 
 
+def neighbour_ranks(train, query, held_out, k: int) -> np.ndarray:
+    """(B, k): each query's k nearest training rows, nearest first (ties: lower row),
+    its own row (``held_out``) never among them."""
+    dist = standardised_distances(train, query, held_out)
+    k = min(k, dist.shape[1])
+    if k < dist.shape[1]:
+        # the k smallest, then their order: the same rows as a full stable sort
+        part = np.argpartition(dist, k - 1, axis=1)[:, :k]
+        cut = np.take_along_axis(dist, part, axis=1).max(axis=1, keepdims=True)
+        keys = np.where(dist <= cut, dist, np.inf)
+        return np.argsort(keys, axis=1, kind="stable")[:, :k]
+    return np.argsort(dist, axis=1, kind="stable")
+
+
 class NeighbourModel:
     """p_j and tau_j of the module docstring for B instances, with the paused-try
     counterparts; updated after each try (see :meth:`observe`)."""
 
     def __init__(self, outcomes: TrainingOutcomes, train: np.ndarray, query: np.ndarray,
-                 k: int, mismatch: float, prior_rows: float, cap: float):
+                 k: int, mismatch: float, prior_rows: float, cap: float,
+                 ranks: np.ndarray | None = None):
         F, T = outcomes.feasible, outcomes.times
         n, m = F.shape
         held = outcomes.held_out
-        dist = standardised_distances(train, query, held)
         B = query.shape[0]
         k = min(k, n - int((held >= 0).any()))
-        self._nb = np.argsort(dist, axis=1, kind="stable")[:, :k]  # (B, k) rows
+        if ranks is None or ranks.shape[1] < k:
+            ranks = neighbour_ranks(train, query, held, k)
+        self._nb = ranks[:, :k]  # (B, k) rows, nearest first
         self._w = np.ones((B, k))
         self.rho, self.a = float(mismatch), float(prior_rows)
         C = outcomes.checks
@@ -154,15 +170,18 @@ class NeighbourModel:
     def observe(self, rows: np.ndarray, cols: np.ndarray, outcome: np.ndarray,
                 resumed: np.ndarray) -> None:
         """Instances ``rows`` tried ``cols`` with ``outcome`` (``resumed``: continuing a
-        paused try); neighbours that disagree get their weight multiplied by mismatch."""
+        paused try).  A neighbour disagrees when it planned where the instance did not,
+        or the other way round, as far as the try has shown: a pause disagrees with a
+        plan within the cap, an ended try with the opposite feasibility; each neighbour
+        that disagrees at a column has its weight multiplied by mismatch once."""
         if not rows.size:
             return
         cls = self._cls[self._nb[rows], cols[:, None]]  # (R, k)
         out, res = outcome[:, None], resumed[:, None]
-        paused_cls = cls >= 2
-        seen = np.where(out == PAUSED, ~paused_cls,  # paused: those that ended within
-                        np.where(res, paused_cls & (cls != np.where(out == FEASIBLE, 2, 3)),
-                                 cls != np.where(out == FEASIBLE, 1, 0)))
+        planned = (cls == 1) | (cls == 2)
+        ended_opposite = np.where(out == FEASIBLE, ~planned, planned)
+        seen = np.where(out == PAUSED, cls == 1,  # no plan within the cap
+                        np.where(res, ended_opposite & (cls != 1), ended_opposite))
         r, i = np.nonzero(seen)
         if not r.size:
             return
@@ -200,7 +219,8 @@ class Contextual(Box):
     tuned: tuple[str, ...] = ("k",)
 
     def __init__(self, ctx: FoldContext, k: int = 20, mismatch: float = 0.1,
-                 prior_rows: float = 1.0, c: float = 1.96, cap: float = math.inf):
+                 prior_rows: float = 1.0, c: float = 1.96, cap: float = math.inf,
+                 ranks: np.ndarray | None = None):
         super().__init__(ctx, c=c)
         check_settings(k=k, mismatch=mismatch, prior_rows=prior_rows)
         if not cap > 0:
@@ -212,7 +232,7 @@ class Contextual(Box):
         self._model = None
         if has_features(ctx.instance_features):
             self._model = NeighbourModel(ctx.outcomes, ctx.instance_features, ctx.query,
-                                         int(k), mismatch, prior_rows, self.cap)
+                                         int(k), mismatch, prior_rows, self.cap, ranks)
 
     # the live and uncapped interface (propose / update)
 
@@ -382,9 +402,11 @@ class _InnerRuns:
                                horizon=16, outcomes=outcomes,
                                forbidden=None if forbidden is None else forbidden[rows],
                                instance_features=X, query=X[rows])
+        # the neighbours of the largest k, shared by every setting
+        self.ranks = neighbour_ranks(X, X[rows], rows, max(K_GRID))
 
     def mean_time(self, kwargs) -> float:
-        policy = self.cls(self.ctx, **kwargs)
+        policy = self.cls(self.ctx, ranks=self.ranks, **kwargs)
         D, F, T, C = self.truth
         m = F.shape[1]
         trace = simulate(policy, D, F, T, C, m, until_feasible=True)
