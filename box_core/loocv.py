@@ -11,6 +11,7 @@ All held-out rows of a batch advance in lockstep through the same policy code th
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
@@ -386,7 +387,6 @@ class _Setup:
         settings tuned on its training rows: (trace, {setting: (B,) values})."""
         B = folds.Dn.shape[0]
         parts, chosen = [], {}
-        capped = self.checks is not None and "cap_quantile" in cls.defaults
         for positions, rows in groups:
             clock = time.perf_counter()
             kwargs = tune(cls, self.Dn[rows], self.feas[rows], self.T[rows],
@@ -395,7 +395,8 @@ class _Setup:
                           None if self.forbidden is None else self.forbidden[rows])
             spent = time.perf_counter() - clock
             part = folds.restrict(positions)
-            if capped:
+            # tries are capped only with features, stored checks and a finite cap
+            if math.isfinite(kwargs.get("cap", math.inf)) and self.X is not None:
                 trace = _run_tries(cls, kwargs, part, measure)
             else:
                 trace = _uncapped(*run(cls, kwargs, part, measure), part.T, part.feas)
