@@ -55,12 +55,16 @@ from box_core.selectors import TIME_FLOOR, Box, FoldContext, TrainingOutcomes, r
 from box_core.tries import FAILED, FEASIBLE, PAUSED, simulate
 
 #: Neighbour counts and cap quantiles the tuning chooses from (None: no cap)
-K_GRID = (5, 10, 20, 30, 40, 80)
+K_GRID = (10, 20, 40, 80)
 CAP_GRID = (0.9, 0.95, 0.99, None)
 #: Leave-one-out within the training rows evaluates at most this many of them
 INNER_ROWS = 1000
 #: Leave-one-out evaluation tunes the settings of held-out rows in this many groups
 GROUPS = 10
+#: Feature selection scores subsets by the neighbour estimate of feasibility with this
+#: many neighbours, for at most SELECTION_ROWS training rows (drawn with the seed)
+SELECTION_K = 20
+SELECTION_ROWS = 400
 
 
 def standardised_distances(train: np.ndarray, query: np.ndarray,
@@ -182,15 +186,19 @@ class NeighbourModel:
         ended_opposite = np.where(out == FEASIBLE, ~planned, planned)
         seen = np.where(out == PAUSED, cls == 1,  # no plan within the cap
                         np.where(res, ended_opposite & (cls != 1), ended_opposite))
-        r, i = np.nonzero(seen)
+        r, i = np.nonzero(seen)  # row-major: r ascending
         if not r.size:
             return
-        change = self._w[rows[r], i] * (self.rho - 1.0)
-        self._w[rows[r], i] += change
-        delta = sparse.csr_matrix((change, (rows[r], self._nb[rows[r], i])),
-                                  shape=(self._w.shape[0], self._A.shape[0]))
+        b = rows[r]
+        change = self._w[b, i] * (self.rho - 1.0)
+        self._w[b, i] += change
+        B = self._w.shape[0]
+        indptr = np.zeros(B + 1, dtype=np.intp)
+        np.cumsum(np.bincount(b, minlength=B), out=indptr[1:])
+        delta = sparse.csr_matrix((change, self._nb[b, i], indptr),
+                                  shape=(B, self._A.shape[0]))
         self._sums += np.asarray(delta @ self._A)
-        self._mass += np.bincount(rows[r], weights=change, minlength=self._w.shape[0])
+        self._mass += np.bincount(b, weights=change, minlength=B)
 
     def keep(self, folds: np.ndarray) -> None:
         self._nb, self._w = self._nb[folds], self._w[folds]
@@ -209,18 +217,20 @@ class Contextual(Box):
 
     ``k`` neighbours (tuned when not given), ``mismatch`` (weight factor of a neighbour
     that disagrees with an observed outcome), ``prior_rows`` (pseudo-rows at the column
-    means), ``c`` (BOX's coefficient after the first plan).  Without instance features,
-    BOX.
+    means), ``c`` (BOX's coefficient after the first plan), ``select_features`` (1: the
+    features are selected in the training rows, :func:`select_features`; 0: all are
+    used).  Without instance features, BOX.
     """
 
-    defaults = {"k": None, "mismatch": 0.1, "prior_rows": 1.0, "c": 1.96}
+    defaults = {"k": None, "mismatch": 0.1, "prior_rows": 1.0, "c": 1.96,
+                "select_features": 1}
     needs_outcomes = True
     #: settings :func:`tune` chooses when not given
     tuned: tuple[str, ...] = ("k",)
 
     def __init__(self, ctx: FoldContext, k: int = 20, mismatch: float = 0.1,
                  prior_rows: float = 1.0, c: float = 1.96, cap: float = math.inf,
-                 ranks: np.ndarray | None = None):
+                 features: np.ndarray | None = None, ranks: np.ndarray | None = None):
         super().__init__(ctx, c=c)
         check_settings(k=k, mismatch=mismatch, prior_rows=prior_rows)
         if not cap > 0:
@@ -230,9 +240,16 @@ class Contextual(Box):
         self.found = np.zeros(ctx.size, dtype=bool)
         self._threshold = ctx.outcomes.threshold
         self._model = None
-        if has_features(ctx.instance_features):
-            self._model = NeighbourModel(ctx.outcomes, ctx.instance_features, ctx.query,
-                                         int(k), mismatch, prior_rows, self.cap, ranks)
+        X, query = ctx.instance_features, ctx.query
+        if features is not None and has_features(X):  # the features tuning selected
+            keep = np.asarray(features, dtype=bool)
+            if keep.shape != (X.shape[1],):
+                raise ValueError(f"features must be a mask of the {X.shape[1]} instance "
+                                 f"features, got shape {keep.shape}")
+            X, query = X[:, keep], query[:, keep]
+        if has_features(X):
+            self._model = NeighbourModel(ctx.outcomes, X, query, int(k), mismatch,
+                                         prior_rows, self.cap, ranks)
 
     # the live and uncapped interface (propose / update)
 
@@ -350,7 +367,8 @@ def cap_of(quantile, feasible: np.ndarray, checks: np.ndarray | None) -> float:
     return float(np.quantile(checks[feasible], quantile))
 
 
-def tune(cls, Dn, F, T, checks, X, params: dict, seed: int = 0, forbidden=None) -> dict:
+def tune(cls, Dn, F, T, checks, X, params: dict, seed: int = 0, forbidden=None,
+         memo: dict | None = None) -> dict:
     """The settings of ``cls`` for instances outside the training rows given (``Dn``
     (internal unit), ``F``, ``T``, ``checks`` and ``X``: those rows only): what ``params``
     fixes, the rest chosen by leave-one-out on these rows.
@@ -359,15 +377,31 @@ def tune(cls, Dn, F, T, checks, X, params: dict, seed: int = 0, forbidden=None) 
     with ``seed``) training rows with a feasible entry is held out from the others (exact
     prior downdate, its own row out of the neighbours and the standardisation) and the
     policy runs to its first plan; the setting with the least mean time to it wins (ties:
-    the first in the grid).  ``k`` is chosen first over :data:`K_GRID` (uncapped), then
-    ``cap_quantile`` over :data:`CAP_GRID` with that k.  Returns the constructor's keyword
-    arguments (``cap`` in checks).
+    the first in the grid).  The features are chosen first (:func:`select_features`),
+    then ``k`` over :data:`K_GRID` (uncapped), then ``cap_quantile`` over :data:`CAP_GRID`
+    with that k.  Returns the constructor's keyword arguments (``cap`` in checks).
+    ``memo``: a dict kept between calls on the same rows, which then share the features
+    and k (contextual and contextual_capped evaluated side by side).
     """
     fixed = {key: v for key, v in params.items() if v is not None}
     check_settings(**fixed)
     kwargs = {key: fixed.get(key, cls.defaults[key]) for key in ("mismatch", "prior_rows", "c")}
     if not has_features(X):
         return {"c": kwargs["c"]}
+    memo = {} if memo is None else memo
+    key = (seed, tuple(sorted((name, v) for name, v in fixed.items()
+                              if name != "cap_quantile")))
+    if not fixed.get("select_features", 1):
+        mask = np.ones(X.shape[1], dtype=bool)
+    else:
+        if "mask" not in memo:
+            memo["mask"] = select_features(F, X, seed)
+        mask = memo["mask"]
+    if not mask.any():  # BOX
+        out = {"c": kwargs["c"], "features": mask}
+        return {**out, "cap": math.inf} if "cap_quantile" in cls.defaults else out
+    kwargs["features"] = mask
+    X = X[:, mask]
     n = Dn.shape[0]
     eligible = np.flatnonzero(F.any(axis=1))
     rng = np.random.default_rng((seed, n))
@@ -376,11 +410,13 @@ def tune(cls, Dn, F, T, checks, X, params: dict, seed: int = 0, forbidden=None) 
     if "k" in fixed:
         kwargs["k"] = int(fixed["k"])
     capped = "cap_quantile" in cls.defaults
-    if "k" not in fixed or (capped and "cap_quantile" not in fixed):
+    if ("k" not in fixed and key not in memo) or (capped and "cap_quantile" not in fixed):
         runner = _InnerRuns(cls, Dn, F, T, checks, X, eligible, forbidden, seed)
     if "k" not in fixed:
-        grid = [k for k in K_GRID if k < n - 1] or [max(1, n - 2)]
-        kwargs["k"] = runner.best("k", grid, {**kwargs, "cap": math.inf}, F)
+        if key not in memo:
+            grid = [k for k in K_GRID if k < n - 1] or [max(1, n - 2)]
+            memo[key] = runner.best("k", grid, {**kwargs, "cap": math.inf}, F)
+        kwargs["k"] = memo[key]
     if capped:
         if "cap_quantile" in fixed:
             kwargs["cap"] = cap_of(fixed["cap_quantile"], F, checks)
@@ -406,6 +442,7 @@ class _InnerRuns:
         self.ranks = neighbour_ranks(X, X[rows], rows, max(K_GRID))
 
     def mean_time(self, kwargs) -> float:
+        kwargs = {key: v for key, v in kwargs.items() if key != "features"}  # X: selected
         policy = self.cls(self.ctx, ranks=self.ranks, **kwargs)
         D, F, T, C = self.truth
         m = F.shape[1]
@@ -415,6 +452,55 @@ class _InnerRuns:
     def best(self, name, grid, kwargs, F):
         times = [self.mean_time({**kwargs, name: value}) for value in grid]
         return grid[int(np.argmin(times))]
+
+
+def select_features(F: np.ndarray, X: np.ndarray, seed: int = 0) -> np.ndarray:
+    """(q,) bool: the instance features worth measuring distances in, chosen on training
+    rows only by greedy forward selection.
+
+    A subset is scored by how well its k = min(:data:`SELECTION_K`, max(3, n / 5)) nearest
+    neighbours (features
+    standardised over these rows, each row out of its own neighbours) predict a row's
+    feasibility: the mean squared error of p_rj = (plans among the neighbours at j +
+    pbar_j) / (k + 1) against F[r, j], over at most :data:`SELECTION_ROWS` rows.  Starting
+    from no feature (p = pbar), the feature that lowers the error most is added while it
+    lowers it by 0.1 % or more.  Features that say nothing about feasibility (or are
+    constant) stay out; with none selected the selector is BOX."""
+    n, q = X.shape
+    chosen = np.zeros(q, dtype=bool)
+    if n < 3:
+        return chosen
+    rng = np.random.default_rng((seed, n, 1))
+    rows = np.arange(n)
+    if n > SELECTION_ROWS:
+        rows = np.sort(rng.choice(n, SELECTION_ROWS, replace=False))
+    sd = X.std(axis=0)
+    k = min(SELECTION_K, max(3, n // 5), n - 1)  # a neighbourhood, not every row
+    pbar = F.mean(axis=0)
+    truth = F[rows].astype(np.float64)
+
+    def error(dist):
+        near = np.argpartition(dist, k - 1, axis=1)[:, :k]
+        p = (F[near].sum(axis=1) + pbar) / (k + 1)
+        return float(((p - truth) ** 2).mean())
+
+    best = float(((pbar - truth) ** 2).mean())
+    current = np.zeros((rows.size, n))
+    current[np.arange(rows.size), rows] = np.inf  # never one's own neighbour
+    while True:
+        trials = []
+        for f in np.flatnonzero(~chosen & (sd > 0)):
+            z = X[:, f] / sd[f]
+            trials.append((error(current + (z[rows, None] - z[None, :]) ** 2), f))
+        if not trials:
+            break
+        err, f = min(trials)
+        if not err < best * (1 - 1e-3):
+            break
+        best, chosen[f] = err, True
+        z = X[:, f] / sd[f]
+        current += (z[rows, None] - z[None, :]) ** 2
+    return chosen
 
 
 def tuning_groups(n: int, seed: int, groups: int = GROUPS) -> np.ndarray:

@@ -336,11 +336,12 @@ class _Setup:
                        query=None if self.X is None else self.X[test])
         run = _run_fast if fast else _run
         traces, settings = {}, {}
+        groups, memo = tuning(test), {}  # memo: what selectors tuned alike share, per group
         for name, cls in self.classes.items():
             params = dict(self.params.get(name, {}))
             if issubclass(cls, Contextual):
-                traces[name], settings[name] = self._tuned(cls, params, folds, tuning(test),
-                                                           measure, run)
+                traces[name], settings[name] = self._tuned(cls, params, folds, groups,
+                                                           measure, run, memo)
             else:
                 order, overhead = run(cls, params, folds, measure)
                 traces[name] = _uncapped(order, overhead, T, feas)
@@ -382,17 +383,18 @@ class _Setup:
             result.best_score[name] = _best_by_time(totals[name], scores, grid, self.d)
         return result
 
-    def _tuned(self, cls, params, folds, groups, measure, run):
+    def _tuned(self, cls, params, folds, groups, measure, run, memo):
         """A :class:`Contextual` selector over the held-out rows, each group with the
         settings tuned on its training rows: (trace, {setting: (B,) values})."""
         B = folds.Dn.shape[0]
         parts, chosen = [], {}
-        for positions, rows in groups:
+        for g, (positions, rows) in enumerate(groups):
             clock = time.perf_counter()
             kwargs = tune(cls, self.Dn[rows], self.feas[rows], self.T[rows],
                           None if self.checks is None else self.checks[rows],
                           None if self.X is None else self.X[rows], params, folds.seed,
-                          None if self.forbidden is None else self.forbidden[rows])
+                          None if self.forbidden is None else self.forbidden[rows],
+                          memo=memo.setdefault(g, {}))
             spent = time.perf_counter() - clock
             part = folds.restrict(positions)
             # tries are capped only with features, stored checks and a finite cap
@@ -403,8 +405,9 @@ class _Setup:
             if measure and trace.overhead.size:
                 trace.overhead[:, 0] += spent / positions.size
             parts.append((positions, trace))
-            for key, value in kwargs.items():
-                chosen.setdefault(key, np.full(B, np.nan))[positions] = value
+            for key, value in kwargs.items():  # numbers, and the features' mask
+                value = np.asarray(value, dtype=np.float64)
+                chosen.setdefault(key, np.full((B,) + value.shape, np.nan))[positions] = value
         width = max(tr.order.shape[1] for _, tr in parts)
         out = TryTrace(order=np.full((B, width), -1, dtype=np.intp),
                        allowance=np.zeros((B, width)), cost=np.zeros((B, width)),

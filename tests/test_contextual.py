@@ -21,7 +21,7 @@ def problem(n, m, q, seed, budget=1000):
     entries at the budget, infeasible) and instance features that predict feasibility."""
     rng = np.random.default_rng(seed)
     X = rng.normal(size=(n, q))
-    logit = X @ rng.normal(size=(q, m)) + rng.normal(size=m)
+    logit = 3 * X @ rng.normal(size=(q, m)) + rng.normal(size=m)
     F = rng.random((n, m)) < 1 / (1 + np.exp(-logit))
     F[:, 0] |= rng.random(n) < 0.2
     checks = np.where(F, rng.integers(0, budget, size=(n, m)),
@@ -37,9 +37,12 @@ def internal(S, F):
     return standardise(D, score_unit(D))
 
 
-def reference_tries(S, F, T, C, X, i, ends, cap, **params):
+def reference_tries(S, F, T, C, X, i, ends, cap, mask, **params):
+    """The direct implementation's tries on row i, in the features ``mask`` that tuning
+    selected for it (none: BOX)."""
     Dn = internal(S, F)
     rest = np.delete(np.arange(S.shape[0]), i)
+    X = X[:, mask.astype(bool)] if mask.any() else None
     return reference.contextual_tries(
         Dn[rest], F[rest], T[rest], None if C is None else C[rest],
         None if X is None else X[rest], None if X is None else X[i], Dn[i], F[i], T[i],
@@ -48,18 +51,20 @@ def reference_tries(S, F, T, C, X, i, ends, cap, **params):
 
 @pytest.mark.parametrize("seed", range(4))
 def test_uncapped_orders_equal_the_direct_implementation(seed):
-    S, F, T, C, X = problem(14, 7, 3, seed)
+    S, F, T, C, X = problem(30, 7, 3, seed)
     res = box_core.loocv(S, times=T, feasible=F, selectors=("contextual",),
                          params={"contextual": {"k": 5, "mismatch": 0.2}},
                          instance_features=X, measure_overhead=False)
     for i in range(S.shape[0]):
-        expected = reference_tries(S, F, T, None, X, i, 7, math.inf, k=5, mismatch=0.2)
+        mask = res.settings["contextual"]["features"][i]
+        expected = reference_tries(S, F, T, None, X, i, 7, math.inf, mask, k=5, mismatch=0.2)
         assert res.order["contextual"][i].tolist() == [j for j, *_ in expected]
+    assert res.settings["contextual"]["features"].any(axis=1).mean() >= 0.5  # the model ran
 
 
 @pytest.mark.parametrize("seed", range(4))
 def test_capped_tries_equal_the_direct_implementation(seed):
-    S, F, T, C, X = problem(14, 7, 3, seed)
+    S, F, T, C, X = problem(30, 7, 3, seed)
     res = box_core.loocv(S, times=T, feasible=F, selectors=("contextual_capped",),
                          params={"contextual_capped": {"k": 6, "cap_quantile": 0.5}},
                          instance_features=X, checks=C, measure_overhead=False, k=5)
@@ -67,12 +72,15 @@ def test_capped_tries_equal_the_direct_implementation(seed):
     paused = 0
     for i in range(S.shape[0]):
         cap = res.settings[name]["cap"][i]
-        expected = reference_tries(S, F, T, C, X, i, 5, cap, k=6)
+        mask = res.settings[name]["features"][i]
+        expected = reference_tries(S, F, T, C, X, i, 5, cap, mask, k=6)
         got = res.order[name][i]
         used = got >= 0
         assert got[used].tolist() == [j for j, *_ in expected]
-        assert res.allowance[name][i, used].tolist() == [a for _, a, *_ in expected]
-        assert res.try_time[name][i, used] == pytest.approx([c for _, _, c, _ in expected])
+        allowance = res.allowance.get(name, np.full(got.shape, np.inf))
+        cost = res.try_time.get(name, T[i, np.maximum(got, 0)][None, :].repeat(30, 0))
+        assert allowance[i, used].tolist() == [a for _, a, *_ in expected]
+        assert cost[i, used] == pytest.approx([c for _, _, c, _ in expected])
         outcomes = [o for *_, o in expected]
         paused += outcomes.count(PAUSED)
         if FEASIBLE in outcomes:
@@ -81,6 +89,7 @@ def test_capped_tries_equal_the_direct_implementation(seed):
             assert res.first_feasible_time[name][i] == pytest.approx(
                 sum(c for _, _, c, _ in expected[:upto + 1]))
     assert paused  # the example exercises pauses and resumptions
+    assert res.settings[name]["features"].any(axis=1).mean() >= 0.5  # the model ran
 
 
 def test_without_instance_features_it_is_box():
@@ -200,7 +209,8 @@ def test_a_3_by_3_leave_one_out_of_capped_tries():
     X = np.array([[0.0], [0.1], [5.0]])
     res = box_core.loocv(S, times=T, feasible=F, selectors=("contextual_capped",), checks=C,
                          instance_features=X, measure_overhead=False,
-                         params={"contextual_capped": {"k": 1, "cap_quantile": 0.5}})
+                         params={"contextual_capped": {"k": 1, "cap_quantile": 0.5,
+                                                       "select_features": 0}})
     name = "contextual_capped"
     for i in range(3):
         used = res.order[name][i] >= 0
