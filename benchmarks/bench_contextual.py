@@ -115,9 +115,15 @@ def main(argv=None) -> None:
               f"[{low:6.3f}, {high:6.3f}] {tries:6.2f} "
               f"{1e3 * budget_time(res, name, T, C, args.budget):9.2f} {own:7.1f}")
     for name, chosen in res.settings.items():
-        text = ", ".join(f"{key} {dict(zip(*np.unique(v, return_counts=True)))}"
-                         for key, v in chosen.items() if key in ("k", "cap"))
-        print(f"{name} settings (value: rows): {text}")
+        parts = []
+        for key in ("k", "cap"):
+            if key in chosen:
+                values, counts = np.unique(chosen[key], return_counts=True)
+                parts.append(f"{key} " + ", ".join(f"{v:g}: {c}" for v, c in
+                                                   zip(values, counts, strict=True)))
+        if "features" in chosen:
+            parts.append(f"features used per row: {chosen['features'].sum(axis=1).mean():.1f}")
+        print(f"{name} settings (value: rows): {'; '.join(parts)}")
 
 
 if __name__ == "__main__":
