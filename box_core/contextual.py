@@ -56,7 +56,7 @@ from box_core.tries import FAILED, FEASIBLE, PAUSED, simulate
 
 #: Neighbour counts and cap quantiles the tuning chooses from (None: no cap)
 K_GRID = (10, 20, 40, 80)
-CAP_GRID = (0.9, 0.95, 0.99, None)
+CAP_GRID = (0.8, 0.9, 0.95, 0.99, None)
 #: Leave-one-out within the training rows evaluates at most this many of them
 INNER_ROWS = 1000
 #: Leave-one-out evaluation tunes the settings of held-out rows in this many groups
@@ -157,6 +157,16 @@ class NeighbourModel:
         S, G = self._sums, self._mean
         p = (self._block(S, 1) + a * self._block(G, 1)) / (M + a)
         tau = (self._block(S, 4) + a * self._block(G, 4)) / (M + a)
+        return p, tau
+
+    def uncapped(self) -> tuple[np.ndarray, np.ndarray]:
+        """(p, tau) of a first try of each column without a cap, (B, m) each."""
+        a, M = self.a, self._mass[:, None]
+        S, G = self._sums, self._mean
+        p = (self._block(S, 1) + self._block(S, 2)
+             + a * (self._block(G, 1) + self._block(G, 2))) / (M + a)
+        tau = (self._block(S, 4) + self._block(S, 5)
+               + a * (self._block(G, 4) + self._block(G, 5))) / (M + a)
         return p, tau
 
     def resumed(self) -> tuple[np.ndarray, np.ndarray]:
@@ -283,12 +293,13 @@ class Contextual(Box):
         if self._model is None:
             cols = argmax_untried(self.values(), ended, self.posterior.scale)
             return cols, allow
-        fresh_p, fresh_tau = self._model.fresh()
-        rates = np.full((B, 2 * m), -np.inf)
-        rates[:, :m] = np.where(self.tried, -np.inf, _rate(fresh_p, fresh_tau))
+        # candidates: a capped first try, an uncapped first try, resuming a paused try
+        rates = np.full((B, 3 * m), -np.inf)
+        rates[:, :m] = np.where(self.tried, -np.inf, _rate(*self._model.fresh()))
+        if math.isfinite(self.cap):
+            rates[:, m:2 * m] = np.where(self.tried, -np.inf, _rate(*self._model.uncapped()))
         if self.paused.any():
-            res_p, res_tau = self._model.resumed()
-            rates[:, m:] = np.where(self.paused, _rate(res_p, res_tau), -np.inf)
+            rates[:, 2 * m:] = np.where(self.paused, _rate(*self._model.resumed()), -np.inf)
         pick = np.argmax(rates, axis=1)
         best = rates[np.arange(B), pick]
         box = self.found | ~(best > 0)

@@ -351,6 +351,16 @@ def contextual_tries(train, feasible, times, checks, X, x, truth, truth_feasible
                 p = (ok + prior_rows * np.mean(cls[:, j] == 1)) / (M + prior_rows)
                 tau = (cost + prior_rows * np.mean(times[:, j] * share[:, j])) / (M + prior_rows)
                 rates.append(p / max(tau, 1e-6))
+            for j in range(m):  # a first try without the cap
+                rate = -math.inf
+                if state[j] == "fresh" and math.isfinite(cap):
+                    ok = sum(w[r] * (cls[r, j] in (1, 2)) for r in nb)
+                    cost = sum(w[r] * times[r, j] for r in nb)
+                    p = (ok + prior_rows * np.mean((cls[:, j] == 1) | (cls[:, j] == 2))) / (
+                        M + prior_rows)
+                    tau = (cost + prior_rows * np.mean(times[:, j])) / (M + prior_rows)
+                    rate = p / max(tau, 1e-6)
+                rates.append(rate)
             for j in range(m):
                 rate = -math.inf
                 if state[j] == "paused":
@@ -363,7 +373,7 @@ def contextual_tries(train, feasible, times, checks, X, x, truth, truth_feasible
                     rate = ok / mass / max(rest / mass, 1e-6) if mass > 0 else 0.0
                 rates.append(rate)
             best = int(np.argmax(rates))
-            if rates[best] > 0:
+            if rates[best] > 0:  # capped first try, uncapped first try, or resumed
                 choice = (best % m, cap if best < m else math.inf)
         if choice is None:
             fresh = [s == "fresh" for s in state.values()]
