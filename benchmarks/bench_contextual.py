@@ -5,7 +5,8 @@
 
 Reads the store's matrices with plain zarr (``scores/score``, ``scores/feasible``,
 ``scores/time``, ``scores/checks`` and, where the store has them, ``instances/features``;
-``--features`` gives an (n, q) .npy array instead).  Prints, per selector: mean time to
+``--features`` gives an (n, q) .npy array instead; an entry with ``--budget`` checks
+or more that is infeasible ran out of the planner's budget).  Prints, per selector: mean time to
 the first feasible plan over the rows where one exists, its ratio to BOX with the paired
 95 % interval (box_core.stats.paired_ratio; above 1: faster than BOX), the mean number of
 tries to it (a resumed try counts again), the mean time spent on tries that ran out of the
@@ -47,7 +48,7 @@ def load(path: str, features: str | None):
         checks = np.asarray(g["scores/checks"][:])
     except Exception as exc:  # a missing store or array: one line
         fail(f"cannot read the score matrices of {path}: {exc}")
-    X = None
+    X, names = None, None
     if features is not None:
         try:
             X = np.load(features, allow_pickle=False)
@@ -55,12 +56,16 @@ def load(path: str, features: str | None):
             fail(f"cannot read --features {features}: {exc}")
     elif "features" in g.get("instances", {}):
         X = np.asarray(g["instances/features"][:], dtype=np.float64)
-    return scores, feasible, times, checks, X
+        if "instance_feature" in g["instances"]:
+            names = np.asarray(g["instances/instance_feature"][:]).astype(str)
+    if X is not None and names is None:
+        names = np.array([f"#{f}" for f in range(X.shape[1])])
+    return scores, feasible, times, checks, X, names
 
 
-def budget_time(result, name, times, checks, budget) -> float:
-    """Mean seconds per eligible row spent on tries of entries that ran out of budget,
-    up to the first plan."""
+def budget_time(result, name, times, checks, feasible, budget) -> float:
+    """Mean seconds per eligible row spent on tries of entries that ran out of budget
+    (infeasible, with ``budget`` checks or more), up to the first plan."""
     order, step = result.order[name], result.first_feasible_step[name]
     rows = np.flatnonzero(step >= 0)
     cost = result.try_time.get(name)
@@ -68,7 +73,7 @@ def budget_time(result, name, times, checks, budget) -> float:
     for i in rows:
         cols = order[i, :step[i] + 1]
         spent = cost[i, :step[i] + 1] if cost is not None else times[i, cols]
-        total += float(spent[checks[i, cols] >= budget].sum())
+        total += float(spent[(checks[i, cols] >= budget) & ~feasible[i, cols]].sum())
     return total / max(rows.size, 1)
 
 
@@ -81,7 +86,7 @@ def main(argv=None) -> None:
     parser.add_argument("--budget", type=int, default=20000,
                         help="an entry with at least this many checks ran out of budget")
     args = parser.parse_args(argv)
-    S, F, T, C, X = load(args.store, args.features)
+    S, F, T, C, X, names_of = load(args.store, args.features)
     names = tuple(args.selectors.split(","))
     if "box" not in names:
         names = ("box",) + names
@@ -113,7 +118,7 @@ def main(argv=None) -> None:
         own = float(res.overhead[name].sum())  # the selector's compute, tuning included
         print(f"{name:<18} {1e3 * np.nanmean(t):8.2f} {ratio:9.3f} "
               f"[{low:6.3f}, {high:6.3f}] {tries:6.2f} "
-              f"{1e3 * budget_time(res, name, T, C, args.budget):9.2f} {own:7.1f}")
+              f"{1e3 * budget_time(res, name, T, C, F, args.budget):9.2f} {own:7.1f}")
     for name, chosen in res.settings.items():
         parts = []
         for key in ("k", "cap"):
@@ -122,7 +127,11 @@ def main(argv=None) -> None:
                 parts.append(f"{key} " + ", ".join(f"{v:g}: {c}" for v, c in
                                                    zip(values, counts, strict=True)))
         if "features" in chosen:
-            parts.append(f"features used per row: {chosen['features'].sum(axis=1).mean():.1f}")
+            used, counts = np.unique(chosen["features"].astype(bool), axis=0,
+                                     return_counts=True)
+            for mask, count in zip(used, counts, strict=True):
+                picked = ", ".join(names_of[mask]) if mask.any() else "none (BOX)"
+                parts.append(f"features {picked}: {count} rows")
         print(f"{name} settings (value: rows): {'; '.join(parts)}")
 
 

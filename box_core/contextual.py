@@ -8,13 +8,17 @@ context of the instance, not in score space alone.
 
 Model, per instance (scores in box_core's internal unit):
 
-- *Neighbours*: the ``k`` training rows nearest to the instance in features standardised
-  by the training rows' means and standard deviations (constant features count for
-  nothing; ties in distance go to the lower row), each with weight 1.  After every try
-  that ends before the first plan, a neighbour whose outcome at that column differs from
-  the observed one has its weight multiplied by ``mismatch`` (as :class:`~box_core.
-  selectors.Eips` does with all training rows): the failures seen so far move the
-  estimate towards neighbours that failed where this instance failed.
+- *Features*: those :func:`select_features` picks on the training rows (the ones whose
+  neighbourhoods predict feasibility; on grasp_arm the target's pose, not the obstacle
+  counts); with none picked, BOX.
+- *Neighbours*: the ``k`` training rows nearest to the instance in those features,
+  standardised by the training rows' means and standard deviations (constant features
+  count for nothing; ties in distance go to the lower row), each with weight 1.  After
+  every try before the first plan, a neighbour whose outcome at that column differs from
+  the observed one (a plan where the instance had none, or the other way round) has its
+  weight multiplied by ``mismatch`` (as :class:`~box_core.selectors.Eips` does with all
+  training rows): the failures seen so far move the estimate towards the neighbours that
+  failed where this instance failed.
 - *Feasibility and cost*: with weights w, M = sum w, and ``prior_rows`` = a pseudo-rows at
   the training rows' column means,
 
@@ -31,15 +35,18 @@ Model, per instance (scores in box_core's internal unit):
 
 Without instance features (none given, or q = 0) it *is* BOX: the same orders.
 
-``contextual_capped`` adds capped tries (:mod:`box_core.tries`): fresh tries get an
-allowance of ``cap`` collision checks (the ``cap_quantile`` quantile of the checks of the
-training rows' feasible entries); a try that reaches it is paused, and competes later with
-the fresh candidates by the same rule, with p and tau of the neighbours whose try there
-went past the cap (the conditional chance of a plan and the expected remaining seconds);
-resumed, it runs uncapped.  Without stored checks it is ``contextual``.
+``contextual_capped`` adds capped tries (:mod:`box_core.tries`).  The cap is the
+``cap_quantile`` quantile of the checks of the training rows' feasible entries.  Each
+column offers up to three candidates, all ranked by p / tau: a first try capped (p and tau
+as above), a first try uncapped (p and tau with no cap), and, for a paused try, resuming
+it uncapped (p and tau over the neighbours whose try there went past the cap: the chance
+of a plan after the cap and the expected remaining seconds).  So a column whose
+neighbours sometimes run out of budget is tried capped, one whose plans often take long
+uncapped, and a paused try is resumed when it is the best bet left.  Without stored
+checks, or without a cap, it is ``contextual``.
 
-Settings not given (``k``, and ``cap_quantile`` for the capped one) are tuned by
-:func:`tune` on training rows only, see its docstring and docs/box_core.md.
+Settings not given (the features, ``k``, and ``cap_quantile`` for the capped one) are
+tuned by :func:`tune` on training rows only; see its docstring and docs/box_core.md.
 """
 
 from __future__ import annotations
