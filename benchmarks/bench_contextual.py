@@ -57,7 +57,7 @@ def load(path: str, features: str | None):
     elif "features" in g.get("instances", {}):
         X = np.asarray(g["instances/features"][:], dtype=np.float64)
         if "instance_feature" in g["instances"]:
-            names = np.asarray(g["instances/instance_feature"][:]).astype(str)
+            names = np.array([str(x) for x in g["instances/instance_feature"][:]])
     if X is not None and names is None:
         names = np.array([f"#{f}" for f in range(X.shape[1])])
     return scores, feasible, times, checks, X, names
@@ -126,8 +126,8 @@ def main(argv=None) -> None:
                 values, counts = np.unique(chosen[key], return_counts=True)
                 parts.append(f"{key} " + ", ".join(f"{v:g}: {c}" for v, c in
                                                    zip(values, counts, strict=True)))
-        if "features" in chosen:
-            used, counts = np.unique(chosen["features"].astype(bool), axis=0,
+        if "feature_mask" in chosen:
+            used, counts = np.unique(chosen["feature_mask"].astype(bool), axis=0,
                                      return_counts=True)
             for mask, count in zip(used, counts, strict=True):
                 picked = ", ".join(names_of[mask]) if mask.any() else "none (BOX)"

@@ -247,7 +247,8 @@ class Contextual(Box):
 
     def __init__(self, ctx: FoldContext, k: int = 20, mismatch: float = 0.1,
                  prior_rows: float = 1.0, c: float = 1.96, cap: float = math.inf,
-                 features: np.ndarray | None = None, ranks: np.ndarray | None = None):
+                 feature_mask: np.ndarray | None = None,
+                 ranks: np.ndarray | None = None):
         super().__init__(ctx, c=c)
         check_settings(k=k, mismatch=mismatch, prior_rows=prior_rows)
         if not cap > 0:
@@ -258,10 +259,10 @@ class Contextual(Box):
         self._threshold = ctx.outcomes.threshold
         self._model = None
         X, query = ctx.instance_features, ctx.query
-        if features is not None and has_features(X):  # the features tuning selected
-            keep = np.asarray(features, dtype=bool)
+        if feature_mask is not None and has_features(X):  # the features tuning selected
+            keep = np.asarray(feature_mask, dtype=bool)
             if keep.shape != (X.shape[1],):
-                raise ValueError(f"features must be a mask of the {X.shape[1]} instance "
+                raise ValueError(f"feature_mask must be a mask of the {X.shape[1]} instance "
                                  f"features, got shape {keep.shape}")
             X, query = X[:, keep], query[:, keep]
         if has_features(X):
@@ -416,9 +417,9 @@ def tune(cls, Dn, F, T, checks, X, params: dict, seed: int = 0, forbidden=None,
             memo["mask"] = select_features(F, X, seed)
         mask = memo["mask"]
     if not mask.any():  # BOX
-        out = {"c": kwargs["c"], "features": mask}
+        out = {"c": kwargs["c"], "feature_mask": mask}
         return {**out, "cap": math.inf} if "cap_quantile" in cls.defaults else out
-    kwargs["features"] = mask
+    kwargs["feature_mask"] = mask
     X = X[:, mask]
     n = Dn.shape[0]
     eligible = np.flatnonzero(F.any(axis=1))
@@ -460,7 +461,7 @@ class _InnerRuns:
         self.ranks = neighbour_ranks(X, X[rows], rows, max(K_GRID))
 
     def mean_time(self, kwargs) -> float:
-        kwargs = {key: v for key, v in kwargs.items() if key != "features"}  # X: selected
+        kwargs = {key: v for key, v in kwargs.items() if key != "feature_mask"}  # X: selected
         policy = self.cls(self.ctx, ranks=self.ranks, **kwargs)
         D, F, T, C = self.truth
         m = F.shape[1]

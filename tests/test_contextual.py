@@ -56,10 +56,10 @@ def test_uncapped_orders_equal_the_direct_implementation(seed):
                          params={"contextual": {"k": 5, "mismatch": 0.2}},
                          instance_features=X, measure_overhead=False)
     for i in range(S.shape[0]):
-        mask = res.settings["contextual"]["features"][i]
+        mask = res.settings["contextual"]["feature_mask"][i]
         expected = reference_tries(S, F, T, None, X, i, 7, math.inf, mask, k=5, mismatch=0.2)
         assert res.order["contextual"][i].tolist() == [j for j, *_ in expected]
-    assert res.settings["contextual"]["features"].any(axis=1).mean() >= 0.5  # the model ran
+    assert res.settings["contextual"]["feature_mask"].any(axis=1).mean() >= 0.5  # the model ran
 
 
 def test_capped_tries_equal_the_direct_implementation():
@@ -77,7 +77,7 @@ def capped_tries_against_the_direct_implementation(seed):
     paused = 0
     for i in range(S.shape[0]):
         cap = res.settings[name]["cap"][i]
-        mask = res.settings[name]["features"][i]
+        mask = res.settings[name]["feature_mask"][i]
         expected = reference_tries(S, F, T, C, X, i, 5, cap, mask, k=6)
         got = res.order[name][i]
         used = got >= 0
@@ -93,7 +93,7 @@ def capped_tries_against_the_direct_implementation(seed):
             assert res.first_feasible_step[name][i] == upto
             assert res.first_feasible_time[name][i] == pytest.approx(
                 sum(c for _, _, c, _ in expected[:upto + 1]))
-    assert res.settings[name]["features"].any(axis=1).mean() >= 0.5  # the model ran
+    assert res.settings[name]["feature_mask"].any(axis=1).mean() >= 0.5  # the model ran
     return paused
 
 
