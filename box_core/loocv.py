@@ -336,10 +336,11 @@ class _Setup:
                        query=None if self.X is None else self.X[test])
         run = _run_fast if fast else _run
         traces, settings = {}, {}
-        groups, memo = tuning(test), {}  # memo: what selectors tuned alike share, per group
+        groups, memo = None, {}  # memo: what selectors tuned alike share, per group
         for name, cls in self.classes.items():
             params = dict(self.params.get(name, {}))
             if issubclass(cls, Contextual):
+                groups = tuning(test) if groups is None else groups
                 traces[name], settings[name] = self._tuned(cls, params, folds, groups,
                                                            measure, run, memo)
             else:

@@ -164,7 +164,8 @@ def test_holdout_tunes_on_the_training_rows_and_matches_the_live_selector():
     top = np.unravel_index(np.abs(Dn).argmax(), Dn.shape)[0]
     test = 39 if top != 39 else 38
     train = np.setdiff1d(np.arange(40), [test])
-    res = box_core.holdout(Dn, train, [test], times=T, feasible=F, selectors=("contextual",),
+    res = box_core.holdout(Dn, train, [test], times=T, feasible=F, checks=C,
+                           selectors=("contextual", "contextual_capped"),
                            instance_features=X, measure_overhead=False, seed=0)
     live = box_core.make_selector("contextual", Dn[train], times=T[train], feasible=F[train],
                                   instance_features=X[train], new_instance_features=X[test])
@@ -177,6 +178,9 @@ def test_holdout_tunes_on_the_training_rows_and_matches_the_live_selector():
     want = contextual.tune(contextual.Contextual, Dn[train], F[train], T[train], None,
                            X[train], {}, seed=0)
     assert res.settings["contextual"]["k"][0] == want["k"]
+    want = contextual.tune(contextual.ContextualCapped, Dn[train], F[train], T[train],
+                           C[train].astype(float), X[train], {}, seed=0)
+    assert res.settings["contextual_capped"]["cap"][0] == want["cap"]
 
 
 def test_features_that_predict_feasibility_make_it_faster_than_box():
@@ -267,3 +271,15 @@ def test_live_bad_inputs_are_named():
     with pytest.raises(ValueError, match="cap_quantile must be"):
         box_core.make_selector("contextual_capped", D, instance_features=X,
                                new_instance_features=X[0], cap_quantile=-1)
+
+
+def test_feature_selection_keeps_the_features_that_predict_feasibility():
+    rng = np.random.default_rng(11)
+    n, m = 300, 12
+    signal = rng.normal(size=(n, 2))
+    F = (signal @ rng.normal(size=(2, m)) + 0.3 * rng.normal(size=(n, m))) > 0.5
+    X = np.column_stack([rng.normal(size=n), signal[:, 0], rng.normal(size=(n, 2)) * 50,
+                         signal[:, 1], np.ones(n)])
+    assert contextual.select_features(F, X).tolist() == [False, True, False, False, True,
+                                                         False]
+    assert not contextual.select_features(F, rng.normal(size=(n, 3))).any()
