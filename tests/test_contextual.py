@@ -283,3 +283,27 @@ def test_feature_selection_keeps_the_features_that_predict_feasibility():
     assert contextual.select_features(F, X).tolist() == [False, True, False, False, True,
                                                          False]
     assert not contextual.select_features(F, rng.normal(size=(n, 3))).any()
+
+
+@pytest.mark.parametrize("constant", [0, 5])
+def test_a_skipped_observation_leaves_the_posterior_as_it_was(constant):
+    # a paused try observes nothing: the posterior is the one of the other observations
+    from box_core.gaussian import GaussianPosterior
+    from box_core.prior import Prior
+
+    rng = np.random.default_rng(constant)
+    D = rng.normal(size=(30, 12))
+    D[:, :constant] = 1.0  # inert columns: the compact layout of W where 5 of 12
+    prior = Prior.fit(D)
+    rows = np.arange(8)
+    batch = GaussianPosterior(prior.folds(rows), capacity=4)
+    cols = np.array([rng.permutation(12)[:6] for _ in rows])
+    skip = rng.random((8, 6)) < 0.4
+    for t in range(6):
+        batch.observe(cols[:, t], D[rows, cols[:, t]], skip=skip[:, t])
+    for b in rows:
+        alone = GaussianPosterior(prior.folds([b]), capacity=4)
+        for t in np.flatnonzero(~skip[b]):
+            alone.observe(cols[b, t:t + 1], D[[b], cols[b, t:t + 1]])
+        np.testing.assert_allclose(batch.mean[b], alone.mean[0], atol=1e-9)
+        np.testing.assert_allclose(batch.var[b], alone.var[0], atol=1e-9)
