@@ -134,22 +134,30 @@ class GaussianPosterior:
     def size(self) -> int:
         return self.prior.size
 
-    def observe(self, cols: np.ndarray, scores: np.ndarray) -> None:
-        """Condition instance b on score ``scores[b]`` at column ``cols[b]``, for every b."""
+    def observe(self, cols: np.ndarray, scores: np.ndarray,
+                skip: np.ndarray | None = None) -> None:
+        """Condition instance b on score ``scores[b]`` at column ``cols[b]``, for every b;
+        ``skip`` (B,) bool: instances that observe nothing at this step (their posterior
+        stays as it is; a try paused before its outcome, see :mod:`box_core.tries`)."""
         t = self.t
         if t == self._alpha.shape[1]:
             alpha = np.empty((self.size, 2 * t))
             alpha[:, :t] = self._alpha
             self._alpha = alpha
         inert = self.inert[cols]
+        if skip is not None:
+            inert = inert | skip
         if not inert.any():
             self._condition(None, cols, scores, t)
         else:
             idle = np.flatnonzero(inert)
             # What conditioning computes for an inert column j, without the O(t m) product:
             # l = W[:, j] = 0, so the new row of W is 0, delta = sqrt(eps) and
-            # alpha = (y - mu_j) / delta; mean and var do not move.
+            # alpha = (y - mu_j) / delta; mean and var do not move.  A skipped instance
+            # takes the same zero row with alpha = 0: nothing observed, nothing moves.
             resid = scores[idle] - self.prior.mean[idle, cols[idle]]
+            if skip is not None:
+                resid = np.where(skip[idle], 0.0, resid)
             self._alpha[idle, t] = resid / np.sqrt(self.eps[idle])
             if self._compact:
                 self._full = False

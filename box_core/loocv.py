@@ -11,13 +11,15 @@ All held-out rows of a batch advance in lockstep through the same policy code th
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from box_core import validation
+from box_core.contextual import Contextual, tune, tuning_groups
 from box_core.failure import RULES, fill_failures
 from box_core.failure import failure_value as _failure_value
 from box_core.prior import Prior
@@ -30,6 +32,7 @@ from box_core.selectors import (
     standardise,
 )
 from box_core.summary import Summary, summarize
+from box_core.tries import FAILED, FEASIBLE, TryTrace, simulate
 
 DEFAULT_SELECTORS = ("box", "static", "rand", "doo")
 
@@ -49,6 +52,19 @@ class LoocvResult:
                                     step; benchmarks/bench_loocv.py prints both)
     ``best_score[name]``            (n, G) best score found by each time of ``time_grid``
                                     (the failure value before any plan is found)
+
+    Selectors that give capped tries (``contextual_capped`` with ``checks``) have traces of
+    *tries*, not columns: a paused column appears again when it is resumed, ``order`` has
+    up to 2k entries (-1 after the last), and for them only:
+
+    ``allowance[name]``             (n, K) cumulative collision checks each try was allowed
+                                    (inf: uncapped; 0 after the last try)
+    ``try_time[name]``              (n, K) planning seconds of each try: the share of the
+                                    entry's time its checks took (see box_core.tries)
+
+    ``first_feasible_*`` and ``best_score`` count those shares (paused tries included).
+    ``settings[name]``: for selectors that tune settings (``contextual``...), {setting:
+    (n,) value used for each held-out row}, chosen without that row (docs/box_core.md).
     """
 
     selectors: tuple[str, ...]
@@ -63,6 +79,9 @@ class LoocvResult:
     first_feasible_planning_time: dict[str, np.ndarray] = field(default_factory=dict)
     overhead: dict[str, np.ndarray] = field(default_factory=dict)
     best_score: dict[str, np.ndarray] = field(default_factory=dict)
+    allowance: dict[str, np.ndarray] = field(default_factory=dict)
+    try_time: dict[str, np.ndarray] = field(default_factory=dict)
+    settings: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
     @property
     def n(self) -> int:
@@ -88,6 +107,8 @@ def loocv(
     time_grid=None,
     measure_overhead: bool = True,
     forbidden=None,
+    instance_features=None,
+    checks=None,
 ) -> LoocvResult:
     """Leave-one-out evaluation of ``selectors`` on a score matrix (n x m, higher is better).
 
@@ -111,25 +132,34 @@ def loocv(
     """
     return _loocv(scores, times=times, feasible=feasible, selectors=selectors, k=k,
                   features=features, seed=seed, params=params, failure_rule=failure_rule,
-                  time_grid=time_grid, measure_overhead=measure_overhead, forbidden=forbidden)
+                  time_grid=time_grid, measure_overhead=measure_overhead, forbidden=forbidden,
+                  instance_features=instance_features, checks=checks)
 
 
 def _loocv(scores, *, times, feasible, selectors, k, features, seed, params, failure_rule,
-           time_grid, measure_overhead, forbidden, rows=None, fast: bool = True):
+           time_grid, measure_overhead, forbidden, rows=None, fast: bool = True,
+           instance_features=None, checks=None):
     """:func:`loocv`; ``rows``: hold out only these rows (each still with the prior of
     all the others; the result's rows are these); ``fast=False``: the unoptimised path
     (every instance through every step, nothing skipped: the same result, slower)."""
     setup = _Setup.check(scores, times, feasible, selectors, k, features, params,
-                         failure_rule, min_rows=3, forbidden=forbidden)
+                         failure_rule, min_rows=3, forbidden=forbidden,
+                         instance_features=instance_features, checks=checks)
     prior = Prior.fit(setup.Dn)
     n = setup.D.shape[0]
     rows = np.arange(n) if rows is None else _row_indices(rows, n, "rows")
 
     def outcomes(held_out):
-        return TrainingOutcomes.of(setup.Dn, setup.feas, setup.T, held_out)
+        return TrainingOutcomes.of(setup.Dn, setup.feas, setup.T, held_out, setup.checks)
+
+    groups = tuning_groups(n, seed)
+
+    def tuning(test):  # held-out rows of group g get settings tuned without group g
+        return [(np.flatnonzero(groups[test] == g), np.flatnonzero(groups != g))
+                for g in np.unique(groups[test])]
 
     return setup.evaluate(prior.folds, outcomes, rows, seed, time_grid, measure_overhead,
-                          fast=fast)
+                          fast=fast, train=np.arange(n), tuning=tuning)
 
 
 def holdout(
@@ -148,24 +178,31 @@ def holdout(
     time_grid=None,
     measure_overhead: bool = True,
     forbidden=None,
+    instance_features=None,
+    checks=None,
 ) -> LoocvResult:
     """Like :func:`loocv`, but every row of ``test`` is run with the one prior fitted on the
     rows ``train`` (learning curves, nested cross-validation).  The result's rows are the
     ``test`` rows, in that order; row i of D still seeds its random choices with
     ``(seed, i)``, and the failure value comes from the whole matrix, as in :func:`loocv`;
-    ``forbidden`` (n x m) as in :func:`loocv` (only the ``test`` rows' masks matter).
+    ``forbidden`` (n x m) as in :func:`loocv` (only the ``test`` rows' masks matter);
+    ``instance_features`` and ``checks`` as in :func:`loocv` (settings the selector tunes
+    are tuned on the ``train`` rows).
     """
     return _holdout(scores, train, test, times=times, feasible=feasible, selectors=selectors,
                     k=k, features=features, seed=seed, params=params,
                     failure_rule=failure_rule, time_grid=time_grid,
-                    measure_overhead=measure_overhead, forbidden=forbidden)
+                    measure_overhead=measure_overhead, forbidden=forbidden,
+                    instance_features=instance_features, checks=checks)
 
 
 def _holdout(scores, train, test, *, times, feasible, selectors, k, features, seed, params,
-             failure_rule, time_grid, measure_overhead, forbidden, fast: bool = True):
+             failure_rule, time_grid, measure_overhead, forbidden, fast: bool = True,
+             instance_features=None, checks=None):
     """:func:`holdout`; ``fast=False`` as in :func:`_loocv`."""
     setup = _Setup.check(scores, times, feasible, selectors, k, features, params,
-                         failure_rule, min_rows=2, forbidden=forbidden)
+                         failure_rule, min_rows=2, forbidden=forbidden,
+                         instance_features=instance_features, checks=checks)
     n = setup.D.shape[0]
     train = _row_indices(train, n, "train")
     test = _row_indices(test, n, "test")
@@ -179,10 +216,14 @@ def _holdout(scores, train, test, *, times, feasible, selectors, k, features, se
 
     def outcomes(held_out):
         return TrainingOutcomes.of(setup.Dn[train], setup.feas[train], setup.T[train],
-                                   np.full(held_out.size, -1))
+                                   np.full(held_out.size, -1),
+                                   None if setup.checks is None else setup.checks[train])
+
+    def tuning(test):
+        return [(np.arange(test.size), train)]
 
     return setup.evaluate(lambda rows: prior.batch(rows.size), outcomes, test, seed,
-                          time_grid, measure_overhead, fast=fast)
+                          time_grid, measure_overhead, fast=fast, train=train, tuning=tuning)
 
 
 def _row_indices(rows, n: int, name: str) -> np.ndarray:
@@ -216,10 +257,12 @@ class _Setup:
     params: dict
     k: int
     forbidden: np.ndarray | None
+    X: np.ndarray | None = None  # instance features (n, q), None if none
+    checks: np.ndarray | None = None
 
     @classmethod
     def check(cls, scores, times, feasible, selectors, k, features, params, failure_rule,
-              min_rows, forbidden=None):
+              min_rows, forbidden=None, instance_features=None, checks=None):
         D = validation.score_matrix(scores, min_rows=min_rows, feasible=feasible)
         n, m = D.shape
         if times is None:
@@ -229,6 +272,11 @@ class _Setup:
         if (T < 0).any():
             raise ValueError("times must be >= 0")
         theta = None if features is None else validation.feature_matrix(features, m)
+        X = None if instance_features is None else validation.instance_features(
+            instance_features, n)
+        if X is not None and X.shape[1] == 0:
+            X = None
+        C = None if checks is None else validation.checks_matrix(checks, D.shape)
         if failure_rule not in RULES:
             raise ValueError(f"unknown failure rule {failure_rule!r}; "
                              f"choose one of {', '.join(RULES)}")
@@ -268,29 +316,41 @@ class _Setup:
             d = _failure_value(D, feas, failure_rule)
             D = fill_failures(D, feas, d)
         return cls(D=D, Dn=standardise(D, score_unit(D)), T=T, feas=feas, d=d, theta=theta,
-                   names=names, classes=classes, params=params, k=int(k), forbidden=forbidden)
+                   names=names, classes=classes, params=params, k=int(k), forbidden=forbidden,
+                   X=X, checks=C)
 
     def evaluate(self, fold_priors, fold_outcomes, test, seed, time_grid,
-                 measure, fast: bool = True) -> LoocvResult:
+                 measure, fast: bool = True, train=None, tuning=None) -> LoocvResult:
         """Run every selector on the ``test`` rows; ``fold_priors(rows)`` and
-        ``fold_outcomes(rows)`` give their priors and training outcomes.  ``fast=False``
+        ``fold_outcomes(rows)`` give their priors and training outcomes, ``train`` the
+        rows the folds train on (their instance features), ``tuning(test)`` the groups
+        [(positions in ``test``, the rows to tune their settings on)].  ``fast=False``
         runs every instance through every step with no arithmetic skipped (the same
         result, up to the measured overhead; what the tests compare the fast path with)."""
         D, T, feas, k = self.D[test], self.T[test], self.feas[test], self.k
         hidden = None if self.forbidden is None else self.forbidden[test]
         folds = _Folds(fold_priors, fold_outcomes, self.Dn[test], T, feas, hidden, self.theta,
-                       test, seed, k, fast)
+                       test, seed, k, fast,
+                       checks=None if self.checks is None else self.checks[test],
+                       train_features=None if self.X is None else self.X[train],
+                       query=None if self.X is None else self.X[test])
         run = _run_fast if fast else _run
-        runs = {
-            name: run(cls, dict(self.params.get(name, {})), folds, measure)
-            for name, cls in self.classes.items()
-        }
+        traces, settings = {}, {}
+        groups, memo = None, {}  # memo: what selectors tuned alike share, per group
+        for name, cls in self.classes.items():
+            params = dict(self.params.get(name, {}))
+            if issubclass(cls, Contextual):
+                groups = tuning(test) if groups is None else groups
+                traces[name], settings[name] = self._tuned(cls, params, folds, groups,
+                                                           measure, run, memo)
+            else:
+                order, overhead = run(cls, params, folds, measure)
+                traces[name] = _uncapped(order, overhead, T, feas)
         if hidden is not None:
             feas = feas & ~hidden
         rows = np.arange(test.size)[:, None]
         totals = {  # cumulative time after each try: planning plus the selector's own time
-            name: np.cumsum(T[rows, order] + overhead, axis=1)
-            for name, (order, overhead) in runs.items()
+            name: np.cumsum(tr.cost + tr.overhead, axis=1) for name, tr in traces.items()
         }
         grid = _default_grid(totals, T) if time_grid is None else _checked_grid(time_grid)
         result = LoocvResult(
@@ -300,22 +360,88 @@ class _Setup:
             eligible=feas.any(axis=1),
             optimal_score=(D if hidden is None else np.where(hidden, -np.inf, D)).max(axis=1),
             time_grid=grid,
+            settings=settings,
         )
-        for name, (order, overhead) in runs.items():
-            hit = feas[rows, order]
+        for name, tr in traces.items():
+            order = tr.order
+            hit = tr.outcome == FEASIBLE
             found = hit.any(axis=1)
             step = np.where(found, hit.argmax(axis=1), -1)
             at = np.maximum(step, 0)[:, None]
-            planning = np.cumsum(T[rows, order], axis=1)
+            planning = np.cumsum(tr.cost, axis=1)
             result.order[name] = order
-            result.overhead[name] = overhead
+            result.overhead[name] = tr.overhead
             result.first_feasible_step[name] = step
             planning_at = planning[rows, at][:, 0]
             result.first_feasible_planning_time[name] = np.where(found, planning_at, np.nan)
             result.first_feasible_time[name] = np.where(found, totals[name][rows, at][:, 0],
                                                         np.nan)
-            result.best_score[name] = _best_by_time(totals[name], D[rows, order], grid, self.d)
+            if np.isfinite(tr.allowance).any():
+                result.allowance[name] = tr.allowance
+                result.try_time[name] = tr.cost
+            scores = np.where((tr.outcome == FEASIBLE) | (tr.outcome == FAILED),
+                              D[rows, np.maximum(order, 0)], self.d)
+            result.best_score[name] = _best_by_time(totals[name], scores, grid, self.d)
         return result
+
+    def _tuned(self, cls, params, folds, groups, measure, run, memo):
+        """A :class:`Contextual` selector over the held-out rows, each group with the
+        settings tuned on its training rows: (trace, {setting: (B,) values})."""
+        B = folds.Dn.shape[0]
+        parts, chosen = [], {}
+        for g, (positions, rows) in enumerate(groups):
+            clock = time.perf_counter()
+            kwargs = tune(cls, self.Dn[rows], self.feas[rows], self.T[rows],
+                          None if self.checks is None else self.checks[rows],
+                          None if self.X is None else self.X[rows], params, folds.seed,
+                          None if self.forbidden is None else self.forbidden[rows],
+                          memo=memo.setdefault(g, {}))
+            spent = time.perf_counter() - clock
+            part = folds.restrict(positions)
+            # tries are capped only with features, stored checks and a finite cap
+            if math.isfinite(kwargs.get("cap", math.inf)) and self.X is not None:
+                trace = _run_tries(cls, kwargs, part, measure)
+            else:
+                trace = _uncapped(*run(cls, kwargs, part, measure), part.T, part.feas)
+            if measure and trace.overhead.size:
+                trace.overhead[:, 0] += spent / positions.size
+            parts.append((positions, trace))
+            for key, value in kwargs.items():  # numbers, and the features' mask
+                value = np.asarray(value, dtype=np.float64)
+                chosen.setdefault(key, np.full((B,) + value.shape, np.nan))[positions] = value
+        width = max(tr.order.shape[1] for _, tr in parts)
+        out = TryTrace(order=np.full((B, width), -1, dtype=np.intp),
+                       allowance=np.zeros((B, width)), cost=np.zeros((B, width)),
+                       outcome=np.full((B, width), -1, dtype=np.int8),
+                       overhead=np.zeros((B, width)))
+        for positions, tr in parts:
+            w = tr.order.shape[1]
+            for key in ("order", "allowance", "cost", "outcome", "overhead"):
+                getattr(out, key)[positions, :w] = getattr(tr, key)
+        return out, chosen
+
+
+def _uncapped(order, overhead, T, feas) -> TryTrace:
+    """The trace of uncapped tries in ``order``: each costs its time and ends."""
+    rows = np.arange(order.shape[0])[:, None]
+    return TryTrace(order=order, allowance=np.full(order.shape, np.inf),
+                    cost=T[rows, order], outcome=feas[rows, order].astype(np.int8),
+                    overhead=overhead)
+
+
+def _run_tries(cls, kwargs, folds, measure) -> TryTrace:
+    """A selector that gives capped tries over the held-out rows, simulated from their
+    stored checks (:func:`box_core.tries.simulate`) in one batch."""
+    rows = np.arange(folds.Dn.shape[0])
+    clock = time.perf_counter()
+    ctx = replace(folds.context(rows, cls), horizon=16)  # W grows as tries go on
+    policy = cls(ctx, **kwargs)
+    setup = time.perf_counter() - clock
+    trace = simulate(policy, folds.Dn, folds.feas, folds.T, folds.checks, folds.k,
+                     measure=measure)
+    if measure and trace.overhead.size:
+        trace.overhead[:, 0] += setup / rows.size
+    return trace
 
 
 @dataclass(frozen=True, eq=False)
@@ -334,6 +460,20 @@ class _Folds:
     seed: int
     k: int
     fast: bool = True
+    checks: np.ndarray | None = None  # (B, m) of the held-out rows
+    train_features: np.ndarray | None = None  # instance features of the training rows
+    query: np.ndarray | None = None  # instance features of the held-out rows
+
+    def restrict(self, positions: np.ndarray) -> _Folds:
+        """These folds for the held-out rows at ``positions`` only."""
+
+        def rows(a):
+            return None if a is None else a[positions]
+
+        return replace(self, Dn=self.Dn[positions], T=self.T[positions],
+                       feas=self.feas[positions], hidden=rows(self.hidden),
+                       test=self.test[positions], checks=rows(self.checks),
+                       query=rows(self.query))
 
     def context(self, rows: np.ndarray, cls: type[Policy]) -> FoldContext:
         held = self.test[rows]
@@ -348,6 +488,8 @@ class _Folds:
             true_feasible=self.feas[rows],
             forbidden=None if self.hidden is None else self.hidden[rows],
             skip_inert=self.fast,
+            instance_features=self.train_features,
+            query=None if self.query is None else self.query[rows],
         )
 
 

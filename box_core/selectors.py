@@ -74,6 +74,8 @@ class FoldContext:
     true_feasible: np.ndarray | None = None
     forbidden: np.ndarray | None = None
     skip_inert: bool = True
+    instance_features: np.ndarray | None = None  # (n_train, q): the training rows'
+    query: np.ndarray | None = None  # (B, q): the features of the B instances
 
     @property
     def size(self) -> int:
@@ -91,7 +93,8 @@ class FoldContext:
         return replace(self, prior=self.prior.subset(folds),
                        seeds=[self.seeds[i] for i in folds], true_scores=rows(self.true_scores),
                        outcomes=outcomes, true_times=rows(self.true_times),
-                       true_feasible=rows(self.true_feasible), forbidden=rows(self.forbidden))
+                       true_feasible=rows(self.true_feasible), forbidden=rows(self.forbidden),
+                       query=rows(self.query))
 
     @property
     def m(self) -> int:
@@ -437,16 +440,19 @@ class TrainingOutcomes:
     ``feasible`` and ``times`` (n, m) cover the rows the prior was fitted on; ``held_out``
     (B,) names, per instance of the batch, one of those rows to leave out (its own row in
     leave-one-out, whose prior is the rank-one downdate), or -1.  ``threshold``: an
-    observed score above it is a feasible plan (scores in the internal unit).
+    observed score above it is a feasible plan (scores in the internal unit).  ``checks``
+    (n, m), where known: the collision checks each training try used (capped tries).
     """
 
     feasible: np.ndarray
     times: np.ndarray
     held_out: np.ndarray
     threshold: float
+    checks: np.ndarray | None = None
 
     @classmethod
-    def of(cls, scores: np.ndarray, feasible: np.ndarray, times: np.ndarray, held_out):
+    def of(cls, scores: np.ndarray, feasible: np.ndarray, times: np.ndarray, held_out,
+           checks: np.ndarray | None = None):
         """Outcomes of training ``scores`` (internal unit, failures filled), with the
         threshold halfway between the best failure and the worst feasible score."""
         fails, oks = scores[~feasible], scores[feasible]
@@ -457,7 +463,8 @@ class TrainingOutcomes:
         else:
             threshold = 0.5 * (float(fails.max()) + float(oks.min()))
         return cls(feasible=feasible, times=times,
-                   held_out=np.asarray(held_out, dtype=np.intp), threshold=threshold)
+                   held_out=np.asarray(held_out, dtype=np.intp), threshold=threshold,
+                   checks=checks)
 
 
 @register("eips")
@@ -775,7 +782,8 @@ class Selector:
 
 
 def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores=None,
-                  times=None, feasible=None, true_times=None, **params):
+                  times=None, feasible=None, true_times=None, instance_features=None,
+                  new_instance_features=None, checks=None, **params):
     """Build selector ``name`` from a training score matrix (n x m, failures already scored).
 
     ``features`` (m x p) are needed by ``doo``; ``times`` (n x m, seconds per try) and
@@ -784,7 +792,14 @@ def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores
     ``oracle`` and ``fastest``, which also needs ``true_times`` (m,); ``seed`` (an int or a
     sequence of ints) seeds ``rand`` and ``doo``.  Further keyword arguments are the
     selector's parameters (``c`` for box, ``lam`` for doo, ``delta`` for pembo,
-    ``prior_rows``, ``mismatch`` and ``time_rows`` for eips).
+    ``prior_rows``, ``mismatch`` and ``time_rows`` for eips; ``k``, ``mismatch``,
+    ``prior_rows`` and ``c`` for contextual).
+
+    ``instance_features`` (n x q, the training rows') and ``new_instance_features`` (q,),
+    the new instance's) feed ``contextual``: settings not given are tuned on the training
+    rows (:func:`box_core.contextual.tune`; ``checks`` (n x m) are the training rows'
+    collision checks, which only capped tries use; the live selector's tries are
+    uncapped).  Without them, or with q = 0, ``contextual`` is BOX.
     """
     D = validation.score_matrix(train_scores, name="train_scores", min_rows=2)
     unit = score_unit(D)
@@ -813,6 +828,24 @@ def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores
             if true_times is None:
                 raise ValueError(f"selector {name!r} needs true_times (the instance's times)")
             true_t = validation.score_vector(true_times, prior.m, name="true_times")[None, :]
+    X = query = None
+    if instance_features is not None:
+        X = validation.instance_features(instance_features, D.shape[0], ref="train_scores")
+        if new_instance_features is None:
+            raise ValueError("new_instance_features (the new instance's feature row) is "
+                             "needed with instance_features")
+        query = validation.feature_row(new_instance_features, X.shape[1])[None, :]
+    elif new_instance_features is not None:
+        raise ValueError("new_instance_features needs instance_features (the training "
+                         "rows' features)")
+    C = None if checks is None else validation.checks_matrix(checks, D.shape,
+                                                              ref="train_scores")
     ctx = FoldContext(prior=prior.batch(), seeds=[seed], features=features, true_scores=truth,
-                      outcomes=outcomes, true_times=true_t, true_feasible=true_f)
+                      outcomes=outcomes, true_times=true_t, true_feasible=true_f,
+                      instance_features=X, query=query)
+    if getattr(cls, "tuned", None) is not None:
+        from box_core.contextual import tune
+
+        params = tune(cls, D, F, T, C, X, params, seed=seed if isinstance(seed, int) else 0)
+        params.pop("cap", None)  # live tries are uncapped
     return Selector(cls(ctx, **params), unit)

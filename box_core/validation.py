@@ -74,6 +74,51 @@ def feature_matrix(features, m: int, *, name: str = "features") -> np.ndarray:
     return arr
 
 
+def instance_features(values, n: int, *, name: str = "instance_features",
+                      ref: str = "scores") -> np.ndarray:
+    """Instance features, one row per instance: finite float64 (n, q), q >= 0."""
+    try:
+        arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a numeric (instances x features) array: {exc}") \
+            from None
+    if arr.ndim != 2 or arr.shape[0] != n:
+        raise ValueError(f"{name} must have one row per instance of {ref}: expected "
+                         f"({n}, q), got {arr.shape}")
+    _require_finite(arr, name)
+    return arr
+
+
+def feature_row(values, q: int, *, name: str = "new_instance_features") -> np.ndarray:
+    """The features of one instance: finite float64 (q,)."""
+    try:
+        arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name} must be a numeric vector: {exc}") from None
+    if arr.shape != (q,):
+        raise ValueError(f"{name} must have shape ({q},), one value per column of "
+                         f"instance_features, got {arr.shape}")
+    _require_finite(arr, name)
+    return arr
+
+
+def checks_matrix(values, shape: tuple[int, int], *, name: str = "checks",
+                  ref: str = "scores") -> np.ndarray:
+    """Collision checks per entry: non-negative whole numbers with exactly ``shape``,
+    returned as float64."""
+    arr = np.asarray(values)
+    if arr.shape != shape:
+        raise ValueError(f"{name} has shape {arr.shape} but {ref} has shape {shape}")
+    if arr.dtype == np.bool_ or not np.issubdtype(arr.dtype, np.number):
+        raise ValueError(f"{name} must hold whole numbers of collision checks, "
+                         f"got dtype {arr.dtype}")
+    arr = arr.astype(np.float64)
+    _require_finite(arr, name)
+    if (arr < 0).any() or (arr != np.round(arr)).any():
+        raise ValueError(f"{name} must hold whole numbers >= 0")
+    return arr
+
+
 def score_vector(values, m: int, *, name: str) -> np.ndarray:
     arr = np.asarray(values, dtype=np.float64)
     if arr.shape != (m,):

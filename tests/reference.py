@@ -284,3 +284,123 @@ def argmax_sequence(values, tried, scale, steps):
             row.append(j)
         out.append(row)
     return np.array(out, dtype=np.intp).reshape(values.shape[0], steps)
+
+
+def contextual_tries(train, feasible, times, checks, X, x, truth, truth_feasible,
+                     truth_times, truth_checks, ends, k, mismatch=0.1, prior_rows=1.0,
+                     c=1.96, cap=math.inf):
+    """CONTEXTUAL's tries on one instance, recomputed from scratch at every step.
+
+    ``train`` (n, m) scores (internal unit), ``feasible``, ``times``, ``checks`` (None: no
+    caps) and instance features ``X`` of the training rows; ``x`` the instance's features
+    (None: BOX); ``truth*`` its own row.  Returns [(column, allowance, cost, outcome)]
+    with outcome 0 failed, 1 plan, 2 paused, until ``ends`` tries have ended (or every
+    column has)."""
+    n, m = train.shape
+    mu, S = fit(train)
+    scale = math.sqrt(max(S.diagonal().max(), 0.0))
+    if checks is None:
+        cap = math.inf
+    if x is not None:
+        sd = X.std(axis=0)
+        z = np.zeros(n)
+        for f in range(X.shape[1]):
+            if sd[f] > 0:
+                z += ((x[f] - X[:, f]) / sd[f]) ** 2
+        nb = sorted(range(n), key=lambda r: (z[r], r))[:k]
+    state = {j: "fresh" for j in range(m)}  # fresh / paused / ended
+    granted = np.zeros(m)
+    idx, obs, out = [], [], []
+    # class of a training entry: 0 fails within the cap, 1 plans within, 2 plans after,
+    # 3 fails after
+    cls = np.zeros((n, m), dtype=int)
+    share = np.ones((n, m))
+    for r in range(n):
+        for j in range(m):
+            within = checks is None or checks[r, j] <= cap
+            cls[r, j] = (1 if feasible[r, j] else 0) if within else (2 if feasible[r, j] else 3)
+            if not within:
+                share[r, j] = cap / checks[r, j]
+    history = []  # (column, outcome, resumed) before the first plan
+    found = False
+    while sum(s == "ended" for s in state.values()) < min(ends, m):
+        mean, var = posterior(mu, S, idx, obs)
+        box = mean + c * np.sqrt(np.maximum(var, 0.0))
+        choice = None
+        if x is not None and not found:
+            w = {r: 1.0 for r in nb}
+            for j, o, resumed in history:
+                for r in nb:
+                    planned = cls[r, j] in (1, 2)
+                    if o == 2:
+                        differs = cls[r, j] == 1
+                    else:
+                        differs = (not planned) if o == 1 else planned
+                        if resumed:
+                            differs = differs and cls[r, j] != 1
+                    if differs:
+                        w[r] *= mismatch
+            M = sum(w.values())
+            rates = []
+            for j in range(m):
+                if state[j] != "fresh":
+                    rates.append(-math.inf)
+                    continue
+                ok = sum(w[r] * (cls[r, j] == 1) for r in nb)
+                cost = sum(w[r] * times[r, j] * share[r, j] for r in nb)
+                p = (ok + prior_rows * np.mean(cls[:, j] == 1)) / (M + prior_rows)
+                tau = (cost + prior_rows * np.mean(times[:, j] * share[:, j])) / (M + prior_rows)
+                rates.append(p / max(tau, 1e-6))
+            for j in range(m):  # a first try without the cap
+                rate = -math.inf
+                if state[j] == "fresh" and math.isfinite(cap):
+                    ok = sum(w[r] * (cls[r, j] in (1, 2)) for r in nb)
+                    cost = sum(w[r] * times[r, j] for r in nb)
+                    p = (ok + prior_rows * np.mean((cls[:, j] == 1) | (cls[:, j] == 2))) / (
+                        M + prior_rows)
+                    tau = (cost + prior_rows * np.mean(times[:, j])) / (M + prior_rows)
+                    rate = p / max(tau, 1e-6)
+                rates.append(rate)
+            for j in range(m):
+                rate = -math.inf
+                if state[j] == "paused":
+                    ok = sum(w[r] * (cls[r, j] == 2) for r in nb) + prior_rows * np.mean(
+                        cls[:, j] == 2)
+                    mass = ok + sum(w[r] * (cls[r, j] == 3) for r in nb) + prior_rows * \
+                        np.mean(cls[:, j] == 3)
+                    rest = sum(w[r] * times[r, j] * (1 - share[r, j]) for r in nb) + \
+                        prior_rows * np.mean(times[:, j] * (1 - share[:, j]))
+                    rate = ok / mass / max(rest / mass, 1e-6) if mass > 0 else 0.0
+                rates.append(rate)
+            best = int(np.argmax(rates))
+            if rates[best] > 0:  # capped first try, uncapped first try, or resumed
+                choice = (best % m, cap if best < m else math.inf)
+        if choice is None:
+            fresh = [s == "fresh" for s in state.values()]
+            if not found and any(fresh):
+                j = pick(box, ~np.array(fresh), scale)
+                choice = (j, cap if x is not None else math.inf)
+            else:
+                j = pick(box, np.array([s == "ended" for s in state.values()]), scale)
+                choice = (j, math.inf)
+        j, allow = choice
+        resumed = state[j] == "paused"
+        need = math.inf if truth_checks is None else truth_checks[j]
+        if truth_checks is None or need <= allow:
+            outcome = 1 if truth_feasible[j] else 0
+            done = need if truth_checks is not None else 0
+            cost = truth_times[j] * ((done - granted[j]) / need if need > 0 else 1.0) \
+                if truth_checks is not None else truth_times[j]
+            state[j] = "ended"
+            idx.append(j)
+            obs.append(truth[j])
+        else:
+            outcome = 2
+            cost = truth_times[j] * (allow - granted[j]) / need
+            state[j] = "paused"
+        granted[j] = allow
+        out.append((j, allow, cost, outcome))
+        if not found:
+            history.append((j, outcome, resumed))
+        found = found or outcome == 1
+    return out
