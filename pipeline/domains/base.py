@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -147,6 +148,12 @@ class Domain(abc.ABC):
             raise ValueError(f"{self.name}: instance features must be "
                              f"{self.n_instance_features} finite numbers, got {values!r}")
         return values
+
+    def instance_feature_rows(self, specs) -> np.ndarray:
+        """(n, q) the features of instances given as specs (dicts or their JSON text, as
+        the store holds them)."""
+        return np.stack([self.instance_features(json.loads(s) if isinstance(s, str) else s)
+                         for s in specs]).reshape(len(specs), self.n_instance_features)
 
     def _instance_features(self, instance) -> np.ndarray:
         """The features of a checked instance (a domain that declares ``omega_features``

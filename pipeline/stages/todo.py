@@ -29,6 +29,18 @@ def todo_whole(run: Run, stage: str, group: str) -> str | None:
     return f"damaged: {damage.describe()}" if damage else None
 
 
+def todo_instances(run: Run) -> str | None:
+    """Why stage ``instances`` must run, or None: as :func:`todo_whole`, and on a store of
+    layout 4 or older whose domain declares instance features, to add them (opening the
+    store for writing migrates it: pipeline/store/migrate.py; D is not touched)."""
+    store = run.store
+    if store is not None and store.stage_info("instances") is not None \
+            and store.layout_version < 5 and run.domain.n_instance_features:
+        return f"its instance features are not stored yet (a store of layout " \
+               f"{store.layout_version})"
+    return todo_whole(run, "instances", INSTANCES)
+
+
 def lost_table(store, group: str) -> bool:
     """Whether ``group``'s integrity table is gone from a store that had one: its data can
     no longer be verified, so it is computed again (and compared, where it is an input)."""
@@ -75,7 +87,7 @@ def todo_evaluate(run: Run) -> str | None:
     return f"its results are damaged: {damage.describe()}" if damage else None
 
 
-TODO = {"instances": lambda run: todo_whole(run, "instances", INSTANCES),
+TODO = {"instances": todo_instances,
         "raw": lambda run: todo_blocks(run, RAW),
         "constraints": lambda run: todo_whole(run, "constraints", CONSTRAINTS),
         "scores": lambda run: todo_blocks(run, SCORES),
