@@ -22,32 +22,52 @@ GAP_CAP = 1.0
 NEAR = (0.10, 0.20)
 
 
-def footprint_gap(a: np.ndarray, b: np.ndarray) -> float:
-    """The distance between two convex polygons (corners in order), 0 when they overlap."""
-    if rectangles_overlap(a, b):
-        return 0.0
-    return min(min(_point_segment(p, poly[k], poly[(k + 1) % len(poly)])
-                   for p in other for k in range(len(poly)))
-               for poly, other in ((a, b), (b, a)))
+def corners(boxes) -> np.ndarray:
+    """(k, 4, 2) the footprint corners of each box, in order."""
+    return np.array([rectangle(b.position, b.size, b.yaw) for b in boxes]).reshape(-1, 4, 2)
 
 
-def _point_segment(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
-    ab = b - a
-    t = np.clip(np.dot(p - a, ab) / np.dot(ab, ab), 0.0, 1.0)
-    return float(np.hypot(*(p - (a + t * ab))))
+def footprint_gaps(a: np.ndarray, others: np.ndarray) -> np.ndarray:
+    """(k,) the distance from the convex quadrilateral ``a`` (4, 2) to each of ``others``
+    (k, 4, 2), 0 where they overlap (separating axes; else the least distance from a corner
+    of one to an edge of the other)."""
+    separated = np.zeros(len(others), dtype=bool)
+    for axes in (_normals(a)[None], _normals(others)):  # (1 or k, 4, 2)
+        pa = np.einsum("vd,kad->kav", a, axes)  # (k, axis, corner)
+        pb = np.einsum("kvd,kad->kav", others, axes)
+        separated |= np.any((pa.max(-1) < pb.min(-1)) | (pb.max(-1) < pa.min(-1)), axis=1)
+    ahead = np.roll(a, -1, axis=0)
+    from_a = _point_segment(a[None, :, None], others[:, None], np.roll(others, -1, axis=1)[:, None])
+    from_b = _point_segment(others[:, :, None], a[None, None], ahead[None, None])
+    gap = np.minimum(from_a.min(axis=(1, 2)), from_b.min(axis=(1, 2)))
+    return np.where(separated, gap, 0.0)
 
 
-def box_gap(a: Box, b: Box) -> float:
-    """The distance between two boxes (0 when they touch or overlap)."""
-    flat = footprint_gap(rectangle(a.position, a.size, a.yaw),
-                         rectangle(b.position, b.size, b.yaw))
-    rise = abs(a.position[2] - b.position[2]) - (a.size[2] + b.size[2]) / 2
-    return float(np.hypot(flat, max(rise, 0.0)))
+def _normals(polys: np.ndarray) -> np.ndarray:
+    """Unit normals of the edges of polygons (..., 4, 2)."""
+    edges = np.roll(polys, -1, axis=-2) - polys
+    normal = np.stack([-edges[..., 1], edges[..., 0]], axis=-1)
+    return normal / np.linalg.norm(normal, axis=-1, keepdims=True)
+
+
+def _point_segment(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distances from points ``p`` to segments a-b (broadcast over the leading axes)."""
+    ab, ap = b - a, p - a
+    t = np.clip(np.sum(ap * ab, axis=-1) / np.sum(ab * ab, axis=-1), 0.0, 1.0)
+    return np.linalg.norm(ap - t[..., None] * ab, axis=-1)
 
 
 def gaps(box: Box, others) -> np.ndarray:
-    """(k,) the gap from ``box`` to each of ``others``."""
-    return np.array([box_gap(box, o) for o in others], dtype=float)
+    """(k,) the distance from ``box`` to each of ``others`` (boxes; 0 where they touch or
+    overlap)."""
+    others = list(others)
+    if not others:
+        return np.zeros(0)
+    flat = footprint_gaps(corners([box])[0], corners(others))
+    z = np.array([o.position[2] for o in others])
+    h = np.array([o.size[2] for o in others])
+    rise = np.maximum(np.abs(box.position[2] - z) - (box.size[2] + h) / 2, 0.0)
+    return np.hypot(flat, rise)
 
 
 def nearby(box: Box, others) -> list[float]:

@@ -121,10 +121,11 @@ def _add_environment(store: ScoreStore, group: str) -> int:
     return len(store.finished_blocks(group))
 
 
-def _record_columns(store: ScoreStore, group: str, names, order=None) -> None:
+def _record_columns(store: ScoreStore, group: str, names, order=None, skip=()) -> None:
     """Record in ``group``'s integrity table the digests of arrays ``names`` (new columns,
-    or columns recomputed) for every recorded block; other columns are kept as they are.
-    ``order``: the table's columns afterwards (default: the old ones, then the new)."""
+    or columns recomputed) for every recorded block but those in ``skip`` (left unrecorded:
+    the stage computes them again); other columns are kept as they are.  ``order``: the
+    table's columns afterwards (default: the old ones, then the new)."""
     layout = store.layout(group)
     columns = list(order or [*layout.names, *(n for n in names if n not in layout.names)])
     table = store.array(f"{integrity.GROUP}/{group}")
@@ -134,6 +135,8 @@ def _record_columns(store: ScoreStore, group: str, names, order=None) -> None:
         if not np.all(old[block] != integrity.NOT_RECORDED):
             continue  # not finished: nothing recorded, nothing to add
         rows[block][[columns.index(name) for name in layout.names]] = old[block]
+        if block in skip:
+            continue
         for name in names:
             arr = store.array(f"{group}/{name}")
             chunk = layout.chunk_of(arr.metadata.dimension_names, block)
@@ -196,15 +199,25 @@ def to_layout_5(store: ScoreStore, domain) -> list[str]:
 def _add_instance_features(store: ScoreStore, domain) -> str:
     """``instances/features`` from the stored specs, its coordinates, and their columns in
     the integrity table (written once, in the layout's order: a run interrupted before that
-    write finds a layout-4 store and does it all again)."""
-    features = domain.instance_feature_rows(store.instance_specs())
-    create_instance_features(store, layout.size_of(store.attrs), features.shape[1])
+    write finds a layout-4 store and does it all again).  Blocks whose seeds or specs are
+    damaged get no features and no record of them: stage instances samples them again and
+    repairs the block, features included."""
+    size = layout.size_of(store.attrs)
+    damaged = store.verify("instances", expect_all=True).blocks
+    intact = np.ones(size.n, dtype=bool)
+    for (block,) in damaged:
+        intact[block * size.block_instances:(block + 1) * size.block_instances] = False
+    features = np.full((size.n, domain.n_instance_features), np.nan)
+    if intact.any():
+        features[intact] = domain.instance_feature_rows(store.instance_specs()[intact])
+    create_instance_features(store, size, features.shape[1])
     store.array(INSTANCE_FEATURES)[...] = features
     coords = instance_feature_coord(domain)
     store.write_coords("instances", coords, [FEATURES])
     _record_columns(store, "instances", [FEATURES, *coords],
-                    order=layout.table_columns("instances", domain))
-    return f"instances: {features.shape[1]} features of {features.shape[0]} instances"
+                    order=layout.table_columns("instances", domain), skip=damaged)
+    lost = f" ({len(damaged)} damaged blocks left to stage instances)" if damaged else ""
+    return f"instances: {features.shape[1]} features of {int(intact.sum())} instances{lost}"
 
 
 def _coords(store: ScoreStore, group: str, domain) -> dict:
