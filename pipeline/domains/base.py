@@ -140,10 +140,10 @@ class Domain(abc.ABC):
         checked one), a deterministic function of the spec (no simulator, no randomness):
         what a selector may learn from besides the scores.  ValueError if the domain's
         :meth:`_instance_features` gives other than q finite numbers."""
+        inst = self.check_instance(instance)
         if not self.omega_features:
             return np.zeros(0)
-        values = np.asarray(self._instance_features(self.check_instance(instance)),
-                            dtype=np.float64)
+        values = np.asarray(self._instance_features(inst), dtype=np.float64)
         if values.shape != (self.n_instance_features,) or not np.all(np.isfinite(values)):
             raise ValueError(f"{self.name}: instance features must be "
                              f"{self.n_instance_features} finite numbers, got {values!r}")
