@@ -243,3 +243,27 @@ def test_exports_carry_the_instance_features(made, tmp_path):
     with xr.open_dataset(tmp_path / "d.nc", engine="h5netcdf") as ds:
         assert list(ds["instance_feature"].values) == list(found.names)
         np.testing.assert_array_equal(ds["instance_features"].values, found.values)
+
+
+def test_a_domain_without_instance_features_stores_none(tmp_path):
+    """q = 0 (the example plug-in's slalom declares none): no ``features`` array, and the
+    store is of layout 5 all the same, undamaged."""
+    from pipeline.plugins import plugin_targets
+
+    if "slalom" not in plugin_targets("domain"):
+        pytest.skip("the example plug-in is not installed (pip install -e "
+                    "examples/box-example-plugin)")
+    assert load_domain("slalom").instance_features(load_domain("slalom").sample_instance(1)) \
+        .shape == (0,)
+    store = tmp_path / "slalom.zarr"
+    for _ in range(2):
+        res = subprocess.run([sys.executable, "-m", "pipeline", "stage=instances",
+                              "domain=slalom", "instances.n=6", "progress=false",
+                              f"store.path={store}"], capture_output=True, text=True,
+                             cwd=tmp_path, env=pr.env(), timeout=600)
+        assert res.returncode == 0, res.stderr + res.stdout
+    assert "instances: already complete" in res.stdout
+    assert stored_features(store) is None
+    assert "features" not in xr.open_zarr(store, group="instances")
+    doc = _status(store)
+    assert doc["layout_version"] == LAYOUT_VERSION and not doc["damaged"]
