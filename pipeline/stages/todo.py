@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 from box_core import SELECTOR_REVISION
 from box_core.stats import INTERVAL_METHOD
 from pipeline.evaluation import interval_method, stored_revision
-from pipeline.store.layout import CONSTRAINTS, INSTANCES, RAW, SCORES
+from pipeline.store.layout import CONSTRAINTS, FEATURES_LAYOUT, INSTANCES, RAW, SCORES
 
 if TYPE_CHECKING:
     from pipeline.stages.run import Run
@@ -35,7 +35,7 @@ def todo_instances(run: Run) -> str | None:
     store for writing migrates it: pipeline/store/migrate.py; D is not touched)."""
     store = run.store
     if store is not None and store.stage_info("instances") is not None \
-            and store.layout_version < 5 and run.domain.n_instance_features:
+            and store.layout_version < FEATURES_LAYOUT and run.domain.n_instance_features:
         return f"its instance features are not stored yet (a store of layout " \
                f"{store.layout_version})"
     return todo_whole(run, "instances", INSTANCES)

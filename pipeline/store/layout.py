@@ -58,6 +58,8 @@ FORMAT = "box-planning-score-store"
 #: 4: a dataset: index coordinates, units and names, the evaluation along ``selector``;
 #: 5: the instances' features (``instances/features``), when the domain declares some.
 LAYOUT_VERSION = 5
+#: The layout that added the instances' features.
+FEATURES_LAYOUT = 5
 CODECS = (ZstdCodec(level=3), Crc32cCodec())
 
 # -- groups ----------------------------------------------------------------------------------

@@ -34,7 +34,14 @@ from typing import TYPE_CHECKING
 from pipeline.configs import config_hash
 from pipeline.store import integrity
 from pipeline.store.errors import StoreDamaged, StoreError
-from pipeline.store.layout import FORMAT, LAYOUT_VERSION
+from pipeline.store.layout import (
+    FEATURES,
+    FEATURES_LAYOUT,
+    FORMAT,
+    INSTANCE_FEATURES,
+    INSTANCES,
+    LAYOUT_VERSION,
+)
 
 if TYPE_CHECKING:
     from pipeline.store.score_store import ScoreStore
@@ -90,7 +97,7 @@ def content_layout(store: ScoreStore) -> int | None:
     if not any(store.has_group(g) for g in groups):
         return None
     if _recorded_instance_features(store):
-        return 5
+        return FEATURES_LAYOUT
     if any(store.has(k) for k in ("instances/instance", "constraints/constraint",  # index
                                   "scores/constraint", "raw/feature_units")):  # coordinates
         return 4
@@ -105,10 +112,10 @@ def content_layout(store: ScoreStore) -> int | None:
 def _recorded_instance_features(store: ScoreStore) -> bool:
     """Whether ``instances/features`` is there and its integrity table covers it (what
     layout 5 adds; a store whose domain declares no instance features shows layout 4)."""
-    if not (store.has("instances/features") and store.has_table("instances")):
+    if not (store.has(INSTANCE_FEATURES) and store.has_table(INSTANCES)):
         return False
     try:
-        return "features" in store.layout("instances").names
+        return FEATURES in store.layout(INSTANCES).names
     except (KeyError, TypeError):
         return False
 
@@ -150,7 +157,8 @@ def _root(store: ScoreStore) -> list[Difference]:
         return out
     shown = content_layout(store)
     # a store of layout 5 whose domain declares no instance features shows layout 4
-    if shown is not None and shown != version and not (shown == 4 and version == 5):
+    shows_older = shown == FEATURES_LAYOUT - 1 and version >= FEATURES_LAYOUT
+    if shown is not None and shown != version and not shows_older:
         out.append(Difference("", f"attribute layout_version is {version} but the arrays are "
                                   f"those of layout {shown}", REWRITE))
     if version < LAYOUT_VERSION:
