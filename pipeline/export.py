@@ -8,13 +8,16 @@ are given by name in the tabular formats, and ``box evaluate`` reads each export
 
 * ``npz``: one array per quantity (what ``box evaluate`` has always read), ``metadata``
   as JSON text;
-* ``netcdf``: an xarray Dataset (dimensions instance, constraint, feature), metadata in its
-  attributes;
+* ``netcdf``: an xarray Dataset (dimensions instance, constraint, feature, and
+  instance_feature when the store holds instance features), metadata in its attributes;
 * ``parquet``: one row per entry (instance, constraint, instance_seed, done, feasible,
   score, length, time, status, checks, step, forbidden), metadata (with the constraint
   features) in the file's key-value metadata under ``box-planning``;
-* ``csv``: a folder with the same entry table, the constraints, the instances and
-  ``metadata.json``.
+* ``csv``: a folder with the same entry table, the constraints, the instances (with their
+  features, a column each) and ``metadata.json``.
+
+Where the store holds instance features, ``npz`` has them as ``instance_features`` (n, q)
+and the metadata names them (``instance_features``: names and units; every format).
 """
 
 from __future__ import annotations
@@ -36,6 +39,8 @@ from pipeline.store.layout import (
     FEASIBLE,
     FEATURE,
     FEATURE_UNITS,
+    INSTANCE_FEATURE,
+    INSTANCE_FEATURE_UNITS,
     LENGTH,
     SCORE,
     SCORES,
@@ -76,6 +81,9 @@ def _arrays(store: ScoreStore) -> dict[str, np.ndarray]:
         "done": done,
         "instance_seed": store.instance_seeds(),
     }
+    described = store.instance_features()
+    if described is not None:
+        arrays["instance_features"] = described.values
     own = own_constraints(store)
     if own is not None:  # what ``box evaluate`` hides from each row, as stage=evaluate does
         arrays["forbidden"] = own
@@ -89,6 +97,7 @@ def metadata(store: ScoreStore, arrays: dict) -> dict:
     feasible = arrays["feasible"]
     failure = (failure_value(np.nan_to_num(arrays["scores"]), feasible) if feasible.any()
                else None)
+    described = store.instance_features()
     return {"store": str(store.path), "config_hash": attrs.get("config_hash"),
             "config": attrs.get("config"), "versions": attrs.get("versions"),
             "git_revision": attrs.get("git_revision"), "created": attrs.get("created"),
@@ -102,7 +111,10 @@ def metadata(store: ScoreStore, arrays: dict) -> dict:
                        "min(feasible scores) - |mean(feasible scores)| (rule 'magnitude')",
             "times": "seconds per planning call; NaN where not computed",
             "forbidden": "where present: entry (i, j) is a constraint extracted from row i's own "
-                         "raw solution, hidden from row i in leave-one-out"}
+                         "raw solution, hidden from row i in leave-one-out",
+            **({"instance_features": {"names": list(described.names),
+                                      "units": list(described.units)}}
+               if described is not None else {})}
 
 
 #: What a csv export folder holds (``--overwrite`` replaces a folder holding no more).
@@ -237,10 +249,12 @@ def _write_csv(out: Path, store, arrays, meta) -> None:
             w.writerow([j, *(repr(float(x)) for x in row)])
     with open(out / "instances.csv", "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["instance", "seed", "spec"])
+        described = meta.get("instance_features")
+        w.writerow(["instance", "seed", *(described["names"] if described else []), "spec"])
         specs = store.instance_specs()
+        features = arrays.get("instance_features", np.zeros((len(specs), 0)))
         for i, (seed, spec) in enumerate(zip(arrays["instance_seed"], specs, strict=True)):
-            w.writerow([i, int(seed), str(spec)])
+            w.writerow([i, int(seed), *(repr(float(x)) for x in features[i]), str(spec)])
     (out / "metadata.json").write_text(json.dumps(meta, indent=1))
 
 
@@ -278,6 +292,11 @@ def _write_netcdf(out: Path, store, arrays, meta) -> None:
         if store.has(key(CONSTRAINTS, name)):
             values = store.array(key(CONSTRAINTS, name))[...]
             coords[name] = ("feature", [str(v) for v in values])
+    described = meta.get("instance_features")
+    if described:
+        data["instance_features"] = (("instance", INSTANCE_FEATURE), arrays["instance_features"])
+        coords[INSTANCE_FEATURE] = (INSTANCE_FEATURE, described["names"])
+        coords[INSTANCE_FEATURE_UNITS] = (INSTANCE_FEATURE, described["units"])
     ds = xr.Dataset(data, coords=coords)
     ds.attrs.update(metadata=json.dumps(meta), failure_rule=meta["failure_rule"],
                     **({"failure_value": meta["failure_value"]}

@@ -19,6 +19,7 @@ from typer.testing import CliRunner
 from pipeline.cli import app
 from pipeline.dataset import code_names, with_names
 from pipeline.planning import Status
+from pipeline.store import LAYOUT_VERSION
 from tests import pipeline_runs as pr
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -187,7 +188,7 @@ def test_a_layout_3_store_migrates_keeping_every_entry_and_its_evaluation(tmp_pa
     assert res.returncode == 0, res.stderr + res.stdout
     assert "migrated to layout 4" in res.stdout and "repaired" in res.stdout
     doc = _status(store)
-    assert doc["layout_version"] == 4 and not doc["damaged"]
+    assert doc["layout_version"] == LAYOUT_VERSION and not doc["damaged"]
     g = zarr.open_group(store, mode="r")
     for key, values in before.items():
         assert g[key][...].tobytes() == values.tobytes(), key

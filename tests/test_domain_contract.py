@@ -10,7 +10,9 @@ bad specs and constraints, reports statuses and failed steps the store can hold,
 and extracts a usable constraint from RAWPLANNER's solution; every feasible path, re-checked
 densely by the domain's exact robot model in a fresh scene (not by the planner's own
 checks), is collision-free, and no call reports more checks than its budget allows.  Per
-planner: it plans on a plain robot model, or is refused for it.
+planner: it plans on a plain robot model, or is refused for it.  Per domain: its instance
+features (none, or those it declares) are finite, of the declared length and a function of
+the spec.
 """
 
 from __future__ import annotations
@@ -240,6 +242,26 @@ def test_instances_are_json_and_a_function_of_the_seed(domain):
     assert spec["domain"] == domain and spec["seed"] == 5
     assert spec != d.sample_instance(6)
     d.check_instance(json.loads(json.dumps(spec)))
+
+
+@pytest.mark.parametrize("domain", DOMAINS)
+def test_instance_features_are_declared_finite_and_a_function_of_the_spec(domain):
+    d = _make(domain, "rrt_connect")
+    q = d.n_instance_features
+    assert len({f.name for f in d.omega_features}) == q  # names unique (a coordinate)
+    assert all(f.units and f.description for f in d.omega_features)
+    rows = []
+    for seed in range(6):
+        spec = d.sample_instance(seed)
+        x = d.instance_features(spec)
+        assert x.shape == (q,) and x.dtype == np.float64 and np.all(np.isfinite(x))
+        again = d.instance_features(d.check_instance(json.loads(json.dumps(spec))))
+        assert again.tobytes() == x.tobytes()
+        rows.append(x)
+    table = d.instance_feature_rows([json.dumps(d.sample_instance(s)) for s in range(6)])
+    assert table.shape == (6, q) and table.tobytes() == np.stack(rows).tobytes()
+    if q:
+        assert len({row.tobytes() for row in rows}) > 1, "every instance looks the same"
 
 
 @pytest.mark.parametrize("domain", DOMAINS)

@@ -23,6 +23,7 @@ from typer.testing import CliRunner
 
 from pipeline.cli import app
 from pipeline.environment import agree, fingerprint
+from pipeline.store import LAYOUT_VERSION
 from tests import pipeline_runs as pr
 from tests.cluster.conftest import DaskProcesses, kill
 from tests.replay import child_env, code_paths
@@ -78,7 +79,7 @@ def test_every_block_records_the_environment_that_computed_it(made):
     assert table == [fingerprint()]
     assert (environment(store, "scores") == 0).all() and (environment(store, "raw") == 0).all()
     doc = status(store)
-    assert doc["layout_version"] == 4
+    assert doc["layout_version"] == LAYOUT_VERSION
     assert doc["environments"] == [{"index": 0, "entries": {"raw": 24, "scores": 360},
                                     "environment": fingerprint()}]
 
@@ -171,16 +172,17 @@ def test_a_layout_2_store_opens_resumes_and_migrates_keeping_every_entry(tmp_pat
     doc = status(store)
     assert doc["layout_version"] == 2 and doc["environments"] == [] and not doc["damaged"]
     before = pr.matrix(store)
-    res = run_layout_2(store, "stage=generate")
+    res = run_layout_2(store, "stage=generate")  # layout 5's instance features: work
     assert res.returncode == 0, res.stderr + res.stdout
-    assert "already complete" in res.stdout and "migrated" not in res.stdout
+    assert "scores: already complete" in res.stdout
+    assert all(f"migrated to layout {k}" in res.stdout for k in (3, 4, 5))
     damage_block(store)
     res = run_layout_2(store, "stage=generate")
     assert res.returncode == 0, res.stderr + res.stdout
-    assert "migrated to layout 3" in res.stdout and "migrated to layout 4" in res.stdout
+    assert "migrated" not in res.stdout
     assert "computed before environments were recorded" in res.stdout
     doc = status(store)
-    assert doc["layout_version"] == 4 and not doc["damaged"]
+    assert doc["layout_version"] == LAYOUT_VERSION and not doc["damaged"]
     assert [(e["index"], e["entries"]) for e in doc["environments"]] == [
         (-1, {"raw": 12, "scores": 80}), (0, {"scores": 16})]
     after = pr.matrix(store)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,8 +24,9 @@ __all__ = ["ConstraintSet", "Domain", "EntryTry", "Feature", "InstanceError", "R
 
 @dataclass(frozen=True)
 class Feature:
-    """One entry of a constraint's feature row, as the store names it (``feature``
-    coordinate), with its UDUNITS units ("1": a number without units)."""
+    """One entry of a constraint's feature row (the store's ``feature`` coordinate) or of
+    an instance's (``instance_feature``), with its UDUNITS units ("1": a number without
+    units)."""
 
     name: str
     units: str
@@ -86,6 +88,9 @@ class Domain(abc.ABC):
     steps: ClassVar[tuple[str, ...]] = ()
     #: what each entry of a constraint's feature row is (the store's ``feature`` coordinate)
     theta_features: ClassVar[tuple[Feature, ...]]
+    #: what each entry of an instance's feature vector is (:meth:`instance_features`; the
+    #: store's ``instance_feature`` coordinate); none by default
+    omega_features: ClassVar[tuple[Feature, ...]] = ()
     #: UDUNITS units of a path length (and so of a score, its negative)
     length_units: ClassVar[str]
     #: what a path length measures, for the store's ``long_name`` of ``length``
@@ -125,6 +130,37 @@ class Domain(abc.ABC):
                              "pass the extracted ones")
         keep = np.all(np.isfinite(extracted.features), axis=1)
         return ConstraintSet(extracted.features[keep], extracted.source_instance[keep])
+
+    @property
+    def n_instance_features(self) -> int:
+        """Length of an instance's feature vector (0: the domain declares none)."""
+        return len(self.omega_features)
+
+    def instance_features(self, instance) -> np.ndarray:
+        """(q,) float64: the features ``omega_features`` names, of an instance (a spec or a
+        checked one), a deterministic function of the spec (no simulator, no randomness):
+        what a selector may learn from besides the scores.  ValueError if the domain's
+        :meth:`_instance_features` gives other than q finite numbers."""
+        inst = self.check_instance(instance)
+        if not self.omega_features:
+            return np.zeros(0)
+        values = np.asarray(self._instance_features(inst), dtype=np.float64)
+        if values.shape != (self.n_instance_features,) or not np.all(np.isfinite(values)):
+            raise ValueError(f"{self.name}: instance features must be "
+                             f"{self.n_instance_features} finite numbers, got {values!r}")
+        return values
+
+    def instance_feature_rows(self, specs) -> np.ndarray:
+        """(n, q) the features of instances given as specs (dicts or their JSON text, as
+        the store holds them)."""
+        return np.stack([self.instance_features(json.loads(s) if isinstance(s, str) else s)
+                         for s in specs]).reshape(len(specs), self.n_instance_features)
+
+    def _instance_features(self, instance) -> np.ndarray:
+        """The features of a checked instance (a domain that declares ``omega_features``
+        computes them here)."""
+        raise NotImplementedError(f"{self.name} declares instance features but does not "
+                                  "compute them")
 
     @abc.abstractmethod
     def constraint(self, constraint):

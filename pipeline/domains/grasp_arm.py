@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pybullet as pb
 
+from pipeline.domains import features as F
 from pipeline.domains.base import (
     ConstraintSet,
     Domain,
@@ -58,6 +59,40 @@ FURNITURE = (
     ((0.02, 1.14, 0.60), (0.80, 0.0, 0.30)),  # shelf back panel
 )
 ARM_BASES = ((0.0, 0.30, 0.0), (0.0, -0.30, 0.0))
+
+#: The instance features (GraspArmDomain._instance_features): the target's pose, its
+#: surface, and what is near it.  Gaps are between box surfaces (0: touching), in 3-D.
+INSTANCE_FEATURES = (
+    Feature("target_x", "m", "target centre x (away from the arms)"),
+    Feature("target_y", "m", "target centre y (+: arm 0's side)"),
+    Feature("target_z", "m", "target centre height above the table top"),
+    Feature("target_yaw_cos", "1", "cosine of the target's yaw"),
+    Feature("target_yaw_sin", "1", "sine of the target's yaw"),
+    *(Feature(f"on_{name}", "1", f"1 if the target stands {name.replace('_', ' ')}, else 0")
+      for name in SURFACES),
+    Feature("obstacles", "1", "number of obstacles"),
+    Feature("nearest_gap", "m", "gap between the target and the nearest obstacle (box "
+                                f"surface to box surface; {F.GAP_CAP:g} when none is nearer)"),
+    *(Feature(f"obstacles_within_{round(r * 100)}cm", "1",
+              f"obstacles whose gap to the target is at most {r:g} m") for r in F.NEAR),
+    Feature("headroom", "m", "free height above the target's top under the shelf board "
+                             f"({F.GAP_CAP:g} where nothing is above it)"),
+    Feature("arm_side", "m", "horizontal distance from the target to arm 1's base minus "
+                             "that to arm 0's (+: nearer arm 0)"),
+)
+
+
+FURNITURE_BOXES = tuple(Box(size, centre, 0.0) for size, centre in FURNITURE)
+
+
+def surface_of(box: Box) -> int:
+    """The index in SURFACES of the surface ``box`` stands on: the one whose area holds its
+    centre and whose height is nearest its bottom."""
+    bottom = box.position[2] - box.size[2] / 2
+    inside = [k for k, ((x0, x1), (y0, y1), _, _) in enumerate(SURFACES.values())
+              if x0 <= box.position[0] <= x1 and y0 <= box.position[1] <= y1]
+    heights = [s[2] for s in SURFACES.values()]
+    return min(inside or range(len(SURFACES)), key=lambda k: abs(heights[k] - bottom))
 
 
 @dataclass(frozen=True)
@@ -114,6 +149,7 @@ class GraspArmDomain(Domain):
     theta_features = (Feature("arm", "1", "which Panda grasps: 0 or 1"), *GRASP_FEATURES)
     length_units = "rad"
     length_name = "joint-space path length of the arm"
+    omega_features = INSTANCE_FEATURES
 
     def __init__(self, config: GraspArmConfig, planner):
         super().__init__(config, planner)
@@ -159,6 +195,14 @@ class GraspArmDomain(Domain):
         seed = require(instance, "seed", int)
         target = parse_box(require(instance, "target", dict), "target")
         return GraspArmInstance(seed, target, parse_obstacles(instance))
+
+    def _instance_features(self, inst: GraspArmInstance) -> np.ndarray:
+        t = inst.target
+        surface = surface_of(t)
+        to_arm = [float(np.hypot(t.position[0] - b[0], t.position[1] - b[1])) for b in ARM_BASES]
+        return np.array([*t.position, *F.yaw_features(t.yaw), *F.one_hot(surface, len(SURFACES)),
+                         len(inst.obstacles), *F.nearby(t, inst.obstacles),
+                         F.headroom(t, FURNITURE_BOXES), to_arm[1] - to_arm[0]])
 
     # -- constraints -----------------------------------------------------------------------
     def constraints(self, extracted: ConstraintSet | None = None) -> ConstraintSet:

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.domains import features as F
 from pipeline.domains.base import Domain, EntryTry, Feature, RawSearch, constraint_row
 from pipeline.domains.geometry import Box, sample_obstacles
 from pipeline.domains.grasps import GRASP_FEATURES, Grasp, grasp_set, pregrasp_pose
@@ -49,6 +50,23 @@ from pipeline.sim.mobile import UnladenArm
 TABLES = (Table((1.0, 0.0), (0.6, 1.4), 0.40), Table((-0.1, 1.05), (1.4, 0.6), 0.40))
 START_POSE = np.array([0.0, -0.2, 0.0])  # where the robot is drawn at the start
 STEPS = ("base", "ik", "arm_path")
+#: The instance features (GraspBaseDomain._instance_features): the target's pose on its
+#: table and what is near it (gaps between box surfaces, 0: touching).
+INSTANCE_FEATURES = (
+    Feature("target_x", "m", "target centre x"),
+    Feature("target_y", "m", "target centre y"),
+    Feature("target_yaw_cos", "1", "cosine of the target's yaw"),
+    Feature("target_yaw_sin", "1", "sine of the target's yaw"),
+    Feature("table", "1", "the target's table: 0 the one ahead of the start (x = 1), 1 the "
+                          "one to its left (y = 1.05)"),
+    Feature("edge_distance", "m", "distance from the target's centre to the nearest edge "
+                                  "of its table (how far the arm reaches over the table)"),
+    Feature("obstacles", "1", "number of obstacles"),
+    Feature("nearest_gap", "m", "gap between the target and the nearest obstacle (box "
+                                f"surface to box surface; {F.GAP_CAP:g} when none is nearer)"),
+    *(Feature(f"obstacles_within_{round(r * 100)}cm", "1",
+              f"obstacles whose gap to the target is at most {r:g} m") for r in F.NEAR),
+)
 #: RAWPLANNER stops after this many base-pose draws per collision-free one it asks for
 RAW_DRAWS_PER_SAMPLE = 20
 
@@ -81,6 +99,7 @@ class GraspBaseDomain(Domain):
                       Feature("base_yaw", "rad", "base heading ψ"), *GRASP_FEATURES)
     length_units = "rad"
     length_name = "joint-space path length of the arm"
+    omega_features = INSTANCE_FEATURES
 
     def __init__(self, config: GraspBaseConfig, planner):
         super().__init__(config, planner)
@@ -108,6 +127,13 @@ class GraspBaseDomain(Domain):
         seed = require(instance, "seed", int)
         target = parse_box(require(instance, "target", dict), "target")
         return GraspBaseInstance(seed, target, parse_obstacles(instance))
+
+    def _instance_features(self, inst: GraspBaseInstance) -> np.ndarray:
+        t = inst.target
+        table = F.region_of(t.position, [t.area() for t in TABLES])
+        return np.array([t.position[0], t.position[1], *F.yaw_features(t.yaw), table,
+                         TABLES[table].edge_distance(t.position), len(inst.obstacles),
+                         *F.nearby(t, inst.obstacles)])
 
     # -- constraints -----------------------------------------------------------------------
     def constraint(self, constraint) -> BaseGrasp:

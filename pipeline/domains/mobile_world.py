@@ -32,6 +32,15 @@ class Table:
     def box(self) -> Box:
         return Box((*self.size, self.height), (*self.centre, self.height / 2), 0.0)
 
+    def area(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """The top's (x range, y range)."""
+        return tuple((c - s / 2, c + s / 2) for c, s in zip(self.centre, self.size, strict=True))
+
+    def edge_distance(self, point) -> float:
+        """Distance from ``point`` (x, y) to the nearest edge of the top (0 outside it)."""
+        (x0, x1), (y0, y1) = self.area()
+        return max(0.0, min(point[0] - x0, x1 - point[0], point[1] - y0, y1 - point[1]))
+
 
 class TablePlacer:
     """Draws box poses on table tops, uniformly by area, without overlapping earlier ones."""

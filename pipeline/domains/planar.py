@@ -20,6 +20,9 @@ from pipeline.domains.schemas import PlanarConfig
 from pipeline.domains.specs import InstanceError, finite_rows, require
 from pipeline.planning import PlanResult, Robot, Status, path_is_free, path_length
 
+#: metres between the points of the straight start → goal line the features look at
+LINE_STEP = 0.01
+
 
 @dataclass(frozen=True)
 class PlanarInstance:
@@ -64,6 +67,13 @@ class PlanarDomain(Domain):
     steps = ("via_leg", "goal_leg")
     theta_features = (Feature("via_x", "m", "via point x"), Feature("via_y", "m", "via point y"))
     length_units = "m"
+    #: the straight line start → goal, taken at LINE_STEP spacing (_instance_features)
+    omega_features = (
+        Feature("obstacles", "1", "number of boxes"),
+        Feature("obstacle_area", "1", "summed area of the boxes over the room's"),
+        Feature("line_blockers", "1", "boxes the robot hits going straight from start to goal"),
+        Feature("line_blocked", "1", "fraction of that straight line where the robot would "
+                                     "overlap a box"))
 
     def __init__(self, config: PlanarConfig, planner):
         super().__init__(config, planner)
@@ -100,6 +110,18 @@ class PlanarDomain(Domain):
         if np.any(boxes[:, 2:] <= 0):
             raise InstanceError("instance spec: field 'obstacles' has a box with a size <= 0")
         return PlanarInstance(seed=seed, boxes=boxes)
+
+    def _instance_features(self, inst: PlanarInstance) -> np.ndarray:
+        size = self.config.size
+        boxes = inst.boxes
+        steps = max(2, int(np.ceil(np.linalg.norm(self.goal - self.start) / LINE_STEP)) + 1)
+        line = np.linspace(self.start, self.goal, steps)
+        gap = np.maximum(np.maximum(boxes[None, :, :2] - boxes[None, :, 2:] / 2 - line[:, None],
+                                    line[:, None] - boxes[None, :, :2] - boxes[None, :, 2:] / 2),
+                         0.0)
+        hit = np.hypot(gap[..., 0], gap[..., 1]) < self.config.robot_radius  # (steps, boxes)
+        return np.array([len(boxes), float(np.prod(boxes[:, 2:], axis=1).sum()) / size**2,
+                         np.count_nonzero(hit.any(axis=0)), float(hit.any(axis=1).mean())])
 
     def constraint(self, constraint) -> np.ndarray:
         """The via-point θ as a 2-vector."""

@@ -1,4 +1,5 @@
-"""Stage ``instances``: the instances sampled from their seeds, written whole."""
+"""Stage ``instances``: the instances sampled from their seeds, and their features (when the
+domain declares some), written whole."""
 
 from __future__ import annotations
 
@@ -33,7 +34,8 @@ def stage_instances(run: Run) -> None:
         layout.create(store, INSTANCES, run.domain, size, coords)
 
     repairing = store.stage_info("instances") is not None
-    store.write_whole(INSTANCES, {**layout.instance_arrays(seeds, specs),
+    features = run.domain.instance_feature_rows(specs)  # from the text the store holds
+    store.write_whole(INSTANCES, {**layout.instance_arrays(seeds, specs, features),
                                   **{k: v for k, (_, v, _) in coords.items()}}, make,
                       changed=lambda: run.changed_inputs("instances"))
     run.finish("instances", n=n)

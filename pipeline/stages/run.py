@@ -112,6 +112,7 @@ class Run:
 
             for note in migrate(self.store, self.domain):
                 self.say(f"store: migrated to {note}")
+            self._todo.clear()  # judged on the store before it was migrated
         found = metadata.check(self.store, self.domain)
         if found:
             for note in metadata.repair(self.store, self.domain, found):

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 from box_core import SELECTOR_REVISION
 from box_core.stats import INTERVAL_METHOD
 from pipeline.evaluation import interval_method, stored_revision
-from pipeline.store.layout import CONSTRAINTS, INSTANCES, RAW, SCORES
+from pipeline.store.layout import CONSTRAINTS, FEATURES_LAYOUT, INSTANCES, RAW, SCORES
 
 if TYPE_CHECKING:
     from pipeline.stages.run import Run
@@ -27,6 +27,18 @@ def todo_whole(run: Run, stage: str, group: str) -> str | None:
         return f"its inputs changed ({', '.join(changed)})"
     damage = store.verify(group, expect_all=True)
     return f"damaged: {damage.describe()}" if damage else None
+
+
+def todo_instances(run: Run) -> str | None:
+    """Why stage ``instances`` must run, or None: as :func:`todo_whole`, and on a store of
+    layout 4 or older whose domain declares instance features, to add them (opening the
+    store for writing migrates it: pipeline/store/migrate.py; D is not touched)."""
+    store = run.store
+    if store is not None and store.stage_info("instances") is not None \
+            and store.layout_version < FEATURES_LAYOUT and run.domain.n_instance_features:
+        return f"its instance features are not stored yet (a store of layout " \
+               f"{store.layout_version})"
+    return todo_whole(run, "instances", INSTANCES)
 
 
 def lost_table(store, group: str) -> bool:
@@ -75,7 +87,7 @@ def todo_evaluate(run: Run) -> str | None:
     return f"its results are damaged: {damage.describe()}" if damage else None
 
 
-TODO = {"instances": lambda run: todo_whole(run, "instances", INSTANCES),
+TODO = {"instances": todo_instances,
         "raw": lambda run: todo_blocks(run, RAW),
         "constraints": lambda run: todo_whole(run, "constraints", CONSTRAINTS),
         "scores": lambda run: todo_blocks(run, SCORES),

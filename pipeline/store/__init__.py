@@ -28,6 +28,7 @@ from pipeline.store.layout import (
     BLOCK_DIMS,
     ENVIRONMENT,
     FORMAT,
+    INSTANCE_FEATURES,
     INSTANCE_SEED,
     INSTANCE_SPEC,
     LAYOUT_VERSION,
@@ -39,7 +40,7 @@ from pipeline.store.layout import (
     result_key,
 )
 from pipeline.store.locking import LOCK_SUFFIX, StoreLock
-from pipeline.store.readers import ScoreMatrix, domain_spec_of, path_scores
+from pipeline.store.readers import InstanceFeatures, ScoreMatrix, domain_spec_of, path_scores
 from pipeline.store.score_store import (
     ScoreStore,
     check_is_ours,
@@ -48,9 +49,9 @@ from pipeline.store.score_store import (
 )
 
 __all__ = [
-    "BLOCK_DIMS", "ENVIRONMENT", "FORMAT", "INSTANCE_SEED", "INSTANCE_SPEC", "LAYOUT_VERSION",
-    "LOCK_SUFFIX", "RAW_CONSTRAINT", "RESULT_COLUMNS", "SOURCE_INSTANCE", "THETA",
-    "UNKNOWN_ENVIRONMENT", "LockError", "ScoreMatrix", "ScoreStore", "StoreDamaged",
-    "StoreError", "StoreLock", "check_is_ours", "default_path", "domain_spec_of",
+    "BLOCK_DIMS", "ENVIRONMENT", "FORMAT", "INSTANCE_FEATURES", "INSTANCE_SEED", "INSTANCE_SPEC",
+    "LAYOUT_VERSION", "LOCK_SUFFIX", "RAW_CONSTRAINT", "RESULT_COLUMNS", "SOURCE_INSTANCE",
+    "THETA", "UNKNOWN_ENVIRONMENT", "InstanceFeatures", "LockError", "ScoreMatrix", "ScoreStore",
+    "StoreDamaged", "StoreError", "StoreLock", "check_is_ours", "default_path", "domain_spec_of",
     "path_scores", "result_key", "write_error",
 ]

@@ -8,7 +8,10 @@ Layout (a contract: users open it with ``xarray.open_zarr(path, group=...)`` or
 
     /                 attrs: format, layout_version, identity, config_hash, config,
                              versions, git_revision, created, stages, environments
-    instances/        seed (instance), spec (instance; JSON text); coordinate instance
+    instances/        seed (instance), spec (instance; JSON text), features (instance,
+                      instance_feature; only when the domain declares instance features);
+                      coordinates instance, instance_feature, instance_feature_units
+                      (instance_feature)
     raw/              score length feasible time status checks step tries environment
                       (instance), constraint (instance, feature), done (instance);
                       coordinates instance, instance_seed (instance), feature,
@@ -52,8 +55,11 @@ from pipeline.planning import Status
 FORMAT = "box-planning-score-store"
 #: 1: the first layout; 2: integrity tables, coordinates, every chunk written; 3: the
 #: environment that computed each block (``environment`` arrays, ``environments`` table);
-#: 4: a dataset: index coordinates, units and names, the evaluation along ``selector``.
-LAYOUT_VERSION = 4
+#: 4: a dataset: index coordinates, units and names, the evaluation along ``selector``;
+#: 5: the instances' features (``instances/features``), when the domain declares some.
+LAYOUT_VERSION = 5
+#: The layout that added the instances' features.
+FEATURES_LAYOUT = 5
 CODECS = (ZstdCodec(level=3), Crc32cCodec())
 
 # -- groups ----------------------------------------------------------------------------------
@@ -104,7 +110,7 @@ RESULT_COLUMNS = {
 #: The mask of entries whose block finished (raw and scores).
 DONE = "done"
 #: The arrays of the groups computed whole, and raw's arrays beyond RESULT_COLUMNS.
-SEED, SPEC = "seed", "spec"
+SEED, SPEC, FEATURES = "seed", "spec", "features"
 THETA_NAME, SOURCE_NAME = "theta", "source_instance"
 TRIES, CONSTRAINT = "tries", "constraint"
 #: The per-entry index into the root attribute ENVIRONMENTS (raw and scores).
@@ -114,11 +120,14 @@ UNKNOWN_ENVIRONMENT = -1
 
 INSTANCE_SEED = key(INSTANCES, SEED)
 INSTANCE_SPEC = key(INSTANCES, SPEC)
+INSTANCE_FEATURES = key(INSTANCES, FEATURES)
 RAW_CONSTRAINT = key(RAW, CONSTRAINT)
 THETA = key(CONSTRAINTS, THETA_NAME)
 SOURCE_INSTANCE = key(CONSTRAINTS, SOURCE_NAME)
 #: The names of the coordinates of θ's features (raw and constraints).
 FEATURE, FEATURE_UNITS = "feature", "feature_units"
+#: The names of the coordinates of the instances' features (not θ's ``feature``).
+INSTANCE_FEATURE, INSTANCE_FEATURE_UNITS = "instance_feature", "instance_feature_units"
 
 
 def result_key(group: str, name: str) -> str:
@@ -132,9 +141,10 @@ def done_key(group: str) -> str:
     return key(group, DONE)
 
 
-def instance_arrays(seeds, specs) -> dict:
-    """The data arrays of ``instances`` by name, for a block write."""
-    return {SEED: seeds, SPEC: specs}
+def instance_arrays(seeds, specs, features) -> dict:
+    """The data arrays of ``instances`` by name, for a block write (``features``: (n, q),
+    stored when q > 0)."""
+    return {SEED: seeds, SPEC: specs, **({FEATURES: features} if features.shape[1] else {})}
 
 
 def constraint_arrays(theta, sources) -> dict:
@@ -208,6 +218,20 @@ def feature_coord(domain) -> dict:
                       {"long_name": "feature of a constraint θ"}),
             FEATURE_UNITS: (("feature",), np.asarray([f.units for f in features], dtype=str),
                             {"long_name": "UDUNITS units of the feature"})}
+
+
+def instance_feature_coord(domain) -> dict:
+    """The names and units of the instances' features, as the domain declares them ({}
+    when it declares none)."""
+    features = domain.omega_features
+    if not features:
+        return {}
+    return {INSTANCE_FEATURE: ((INSTANCE_FEATURE,), np.asarray([f.name for f in features],
+                                                               dtype=str),
+                               {"long_name": "feature of an instance ω"}),
+            INSTANCE_FEATURE_UNITS: ((INSTANCE_FEATURE,),
+                                     np.asarray([f.units for f in features], dtype=str),
+                                     {"long_name": "UDUNITS units of the instance feature"})}
 
 
 def source_coord(sources) -> dict:
@@ -295,7 +319,8 @@ def coords(group: str, domain, size: Size, seeds=None, sources=None) -> dict:
     seeds = np.zeros(size.n, dtype="int64") if seeds is None else seeds
     sources = np.zeros(size.m, dtype="int64") if sources is None else sources
     if group == INSTANCES:
-        return index_coord("instance", size.n, "instance index")
+        return {**index_coord("instance", size.n, "instance index"),
+                **instance_feature_coord(domain)}
     if group == RAW:
         return {**instance_coord(seeds), **feature_coord(domain)}
     if group == CONSTRAINTS:
@@ -314,8 +339,12 @@ def create(store, group: str, domain, size: Size, group_coords: dict) -> None:
                      long_name="seed the instance was sampled from")
         store.create(INSTANCE_SPEC, (n,), (b,), str, "", ("instance",),
                      long_name="instance spec, JSON text")
-        store.write_coords(group, group_coords, [SEED, SPEC])
-        store.create_table(group, [SEED, SPEC, *group_coords])
+        names = [SEED, SPEC]
+        if domain.n_instance_features:
+            create_instance_features(store, size, domain.n_instance_features)
+            names.append(FEATURES)
+        store.write_coords(group, group_coords, names[2:])
+        store.create_table(group, [*names, *group_coords])
     elif group == CONSTRAINTS:
         store.create(THETA, (m, p), (bc, p), "float64", np.nan, ("constraint", "feature"),
                      long_name="features of the constraint θ; units: feature_units")
@@ -332,6 +361,13 @@ def create(store, group: str, domain, size: Size, group_coords: dict) -> None:
     else:
         store.create_results(group, (n, m), (b, bc), ("instance", "constraint"), domain,
                              coords=group_coords)
+
+
+def create_instance_features(store, size: Size, q: int) -> None:
+    """The array of the instances' features: (n, q), a chunk per block of instances."""
+    store.create(INSTANCE_FEATURES, (size.n, q), (size.block_instances, q), "float64", np.nan,
+                 ("instance", INSTANCE_FEATURE),
+                 long_name="features of the instance ω; units: instance_feature_units")
 
 
 def expected(attrs: dict, domain, groups) -> dict[str, dict]:

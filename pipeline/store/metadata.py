@@ -34,7 +34,14 @@ from typing import TYPE_CHECKING
 from pipeline.configs import config_hash
 from pipeline.store import integrity
 from pipeline.store.errors import StoreDamaged, StoreError
-from pipeline.store.layout import FORMAT, LAYOUT_VERSION
+from pipeline.store.layout import (
+    FEATURES,
+    FEATURES_LAYOUT,
+    FORMAT,
+    INSTANCE_FEATURES,
+    INSTANCES,
+    LAYOUT_VERSION,
+)
 
 if TYPE_CHECKING:
     from pipeline.store.score_store import ScoreStore
@@ -89,6 +96,8 @@ def content_layout(store: ScoreStore) -> int | None:
     groups = ("instances", "raw", "constraints", "scores")
     if not any(store.has_group(g) for g in groups):
         return None
+    if _recorded_instance_features(store):
+        return FEATURES_LAYOUT
     if any(store.has(k) for k in ("instances/instance", "constraints/constraint",  # index
                                   "scores/constraint", "raw/feature_units")):  # coordinates
         return 4
@@ -98,6 +107,17 @@ def content_layout(store: ScoreStore) -> int | None:
     if any(store.has_table(g) for g in groups):
         return 2
     return 1
+
+
+def _recorded_instance_features(store: ScoreStore) -> bool:
+    """Whether ``instances/features`` is there and its integrity table covers it (what
+    layout 5 adds; a store whose domain declares no instance features shows layout 4)."""
+    if not (store.has(INSTANCE_FEATURES) and store.has_table(INSTANCES)):
+        return False
+    try:
+        return FEATURES in store.layout(INSTANCES).names
+    except (KeyError, TypeError):
+        return False
 
 
 def _fields(found: dict, expected: dict) -> list[str]:
@@ -136,7 +156,9 @@ def _root(store: ScoreStore) -> list[Difference]:
                                   f"reads layouts 1 to {LAYOUT_VERSION}", REFUSE))
         return out
     shown = content_layout(store)
-    if shown is not None and shown != version:
+    # a store of layout 5 whose domain declares no instance features shows layout 4
+    shows_older = shown == FEATURES_LAYOUT - 1 and version >= FEATURES_LAYOUT
+    if shown is not None and shown != version and not shows_older:
         out.append(Difference("", f"attribute layout_version is {version} but the arrays are "
                                   f"those of layout {shown}", REWRITE))
     if version < LAYOUT_VERSION:

@@ -17,6 +17,13 @@ attributes are set on every array; an evaluation stored one group per selector b
 dataset along ``selector`` when its recorded digests still hold (else it is dropped and
 computed again).  No entry of D is rewritten.
 
+Layout 4 → 5: when the domain declares instance features and stage ``instances`` has run,
+``instances/features`` is computed from the stored specs (the same values stage
+``instances`` stores, which computes them from the same text), with its coordinates
+``instance_feature`` and ``instance_feature_units``; the integrity table of ``instances``
+gets their columns in one write.  Nothing of ``raw``, ``constraints``, ``scores`` or the
+evaluation is touched.
+
 Each step can be interrupted and run again.
 """
 
@@ -30,13 +37,19 @@ from pipeline.store.blocks import block_region
 from pipeline.store.integrity import digest
 from pipeline.store.layout import (
     ENVIRONMENT,
+    FEATURES,
+    INSTANCE_FEATURE,
+    INSTANCE_FEATURE_UNITS,
+    INSTANCE_FEATURES,
     INSTANCE_SEED,
     INSTANCE_SPEC,
     RAW_CONSTRAINT,
     THETA,
+    create_instance_features,
     feature_coord,
     index_coord,
     instance_coord,
+    instance_feature_coord,
     result_attrs,
     result_key,
     source_coord,
@@ -54,6 +67,8 @@ def migrate(store: ScoreStore, domain) -> list[str]:
         notes += [f"layout 3: {note}" for note in to_layout_3(store)]
     if store.layout_version < 4:
         notes += [f"layout 4: {note}" for note in to_layout_4(store, domain)]
+    if store.layout_version < 5:
+        notes += [f"layout 5: {note}" for note in to_layout_5(store, domain)]
     return notes
 
 
@@ -106,18 +121,22 @@ def _add_environment(store: ScoreStore, group: str) -> int:
     return len(store.finished_blocks(group))
 
 
-def _record_columns(store: ScoreStore, group: str, names) -> None:
+def _record_columns(store: ScoreStore, group: str, names, order=None, skip=()) -> None:
     """Record in ``group``'s integrity table the digests of arrays ``names`` (new columns,
-    or columns recomputed) for every recorded block; other columns are kept as they are."""
+    or columns recomputed) for every recorded block but those in ``skip`` (left unrecorded:
+    the stage computes them again); other columns are kept as they are.  ``order``: the
+    table's columns afterwards (default: the old ones, then the new)."""
     layout = store.layout(group)
-    columns = [*layout.names, *(n for n in names if n not in layout.names)]
+    columns = list(order or [*layout.names, *(n for n in names if n not in layout.names)])
     table = store.array(f"{integrity.GROUP}/{group}")
     old = table[...]
     rows = np.zeros((*old.shape[:-1], len(columns)), dtype="uint64")
     for block in np.ndindex(*old.shape[:-1]):
         if not np.all(old[block] != integrity.NOT_RECORDED):
             continue  # not finished: nothing recorded, nothing to add
-        rows[block][:len(layout.names)] = old[block]
+        rows[block][[columns.index(name) for name in layout.names]] = old[block]
+        if block in skip:
+            continue
         for name in names:
             arr = store.array(f"{group}/{name}")
             chunk = layout.chunk_of(arr.metadata.dimension_names, block)
@@ -156,11 +175,49 @@ def to_layout_4(store: ScoreStore, domain) -> list[str]:
     _describe(store, domain)
     for group in ("instances", "raw", "constraints", "scores"):
         if store.has_table(group):
-            _order_columns(store, group, layout.table_columns(group, domain))
+            _order_columns(store, group, [c for c in layout.table_columns(group, domain)
+                                          if c not in LAYOUT_5_COLUMNS])
     if store.has_group(evaluation_store.GROUP) and not store.has(evaluation_store.key("selector")):
         notes.append(_regroup_evaluation(store))
     store.set_attrs(layout_version=4)
     return notes
+
+
+#: The columns that layout 5 adds to the integrity table of ``instances``.
+LAYOUT_5_COLUMNS = (FEATURES, INSTANCE_FEATURE, INSTANCE_FEATURE_UNITS)
+
+
+def to_layout_5(store: ScoreStore, domain) -> list[str]:
+    notes = []
+    if domain.n_instance_features and store.has_table("instances") \
+            and store.stage_info("instances") is not None:
+        notes.append(_add_instance_features(store, domain))
+    store.set_attrs(layout_version=5)
+    return notes
+
+
+def _add_instance_features(store: ScoreStore, domain) -> str:
+    """``instances/features`` from the stored specs, its coordinates, and their columns in
+    the integrity table (written once, in the layout's order: a run interrupted before that
+    write finds a layout-4 store and does it all again).  Blocks whose seeds or specs are
+    damaged get no features and no record of them: stage instances samples them again and
+    repairs the block, features included."""
+    size = layout.size_of(store.attrs)
+    damaged = store.verify("instances", expect_all=True).blocks
+    intact = np.ones(size.n, dtype=bool)
+    for (block,) in damaged:
+        intact[block * size.block_instances:(block + 1) * size.block_instances] = False
+    features = np.full((size.n, domain.n_instance_features), np.nan)
+    if intact.any():
+        features[intact] = domain.instance_feature_rows(store.instance_specs()[intact])
+    create_instance_features(store, size, features.shape[1])
+    store.array(INSTANCE_FEATURES)[...] = features
+    coords = instance_feature_coord(domain)
+    store.write_coords("instances", coords, [FEATURES])
+    _record_columns(store, "instances", [FEATURES, *coords],
+                    order=layout.table_columns("instances", domain), skip=damaged)
+    lost = f" ({len(damaged)} damaged blocks left to stage instances)" if damaged else ""
+    return f"instances: {features.shape[1]} features of {int(intact.sum())} instances{lost}"
 
 
 def _coords(store: ScoreStore, group: str, domain) -> dict:

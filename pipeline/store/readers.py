@@ -10,13 +10,18 @@ import numpy as np
 from pipeline.store.blocks import block_region
 from pipeline.store.errors import StoreError
 from pipeline.store.layout import (
+    INSTANCE_FEATURE,
+    INSTANCE_FEATURE_UNITS,
+    INSTANCE_FEATURES,
     INSTANCE_SEED,
     INSTANCE_SPEC,
+    INSTANCES,
     SCORE,
     SCORES,
     SOURCE_INSTANCE,
     THETA,
     done_key,
+    key,
     result_key,
 )
 
@@ -35,6 +40,14 @@ class ScoreMatrix(NamedTuple):
     feasible: np.ndarray  # (n, m) bool
     times: np.ndarray  # (n, m) seconds
     theta: np.ndarray  # (m, p): the constraints' features
+
+
+class InstanceFeatures(NamedTuple):
+    """A store's instance features: their names and units, and the (n, q) values."""
+
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+    values: np.ndarray
 
 
 def path_scores(feasible, length) -> np.ndarray:
@@ -61,6 +74,16 @@ class Readers:
     def instance_specs(self) -> np.ndarray:
         """The instances' specs (JSON text)."""
         return self.array(INSTANCE_SPEC)[...]
+
+    def instance_features(self) -> InstanceFeatures | None:
+        """The instances' features (names, units, (n, q) values), as stage ``instances``
+        stored them; None when the store holds none (its domain declares none, or a store of
+        layout 4 or older not yet migrated)."""
+        if not self.has(INSTANCE_FEATURES):
+            return None
+        names, units = (tuple(str(v) for v in self.array(key(INSTANCES, name))[...])
+                        for name in (INSTANCE_FEATURE, INSTANCE_FEATURE_UNITS))
+        return InstanceFeatures(names, units, self.array(INSTANCE_FEATURES)[...])
 
     def has_results(self, group: str) -> bool:
         """Whether result group ``group`` (``raw`` or ``scores``) has been created."""

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.domains import features as F
 from pipeline.domains.base import Domain, Feature, RawSearch, constraint_row
 from pipeline.domains.geometry import rectangle, sample_obstacles
 from pipeline.domains.ik import IKOutcome, solve_ik
@@ -45,6 +46,20 @@ from pipeline.sim import panda as P
 from pipeline.sim.mobile import MobileArm, MobileBase, base_transform
 from pipeline.sim.world import pose_matrix, quaternion
 
+#: The instance features (PickPlaceDomain._instance_features): the rod, what is near it on
+#: the start table, and how crowded the goal table is (gaps between box surfaces).
+INSTANCE_FEATURES = (
+    Feature("rod_length", "m", "length of the rod"),
+    Feature("start_obstacles", "1", "obstacles on the start table"),
+    Feature("start_nearest_gap", "m", "gap between the rod and the nearest obstacle "
+                                      f"({F.GAP_CAP:g} when none is nearer)"),
+    *(Feature(f"start_within_{round(r * 100)}cm", "1",
+              f"obstacles whose gap to the rod is at most {r:g} m") for r in F.NEAR),
+    Feature("goal_obstacles", "1", "obstacles on the goal table"),
+    Feature("goal_cover", "1", "fraction of the goal table's top under obstacles' "
+                               "footprints"),
+)
+
 
 class PickPlaceDomain(Domain):
     name = "pick_place"
@@ -67,6 +82,7 @@ class PickPlaceDomain(Domain):
     length_name = "base path length plus arm_weight × arm joint path lengths"
     home = P.HOME
     start_pose = START_POSE
+    omega_features = INSTANCE_FEATURES
 
     def __init__(self, config: PickPlaceConfig, planner):
         super().__init__(config, planner)
@@ -104,6 +120,16 @@ class PickPlaceDomain(Domain):
         if not 0.1 <= length <= 1.2:
             raise InstanceError("instance spec: rod_length must be in [0.1, 1.2] m")
         return PickPlaceInstance(seed, float(length), parse_obstacles(instance))
+
+    def _instance_features(self, inst: PickPlaceInstance) -> np.ndarray:
+        tables = [START_TABLE.area(), GOAL_TABLE.area()]
+        on = [F.region_of(o.position, tables) for o in inst.obstacles]
+        start = [o for o, k in zip(inst.obstacles, on, strict=True) if k == 0]
+        goal = [o for o, k in zip(inst.obstacles, on, strict=True) if k == 1]
+        covered = sum(o.size[0] * o.size[1] for o in goal)
+        return np.array([inst.rod_length, len(start),
+                         *F.nearby(start_rod(inst.rod_length), start), len(goal),
+                         covered / (GOAL_TABLE.size[0] * GOAL_TABLE.size[1])])
 
     # -- constraints -----------------------------------------------------------------------
     def constraint(self, constraint) -> Route:
