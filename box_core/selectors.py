@@ -745,10 +745,9 @@ class Selector:
     used ``allowance`` collision checks in all (math.inf: to the end) and reports
     (:meth:`report`) whether it ended (its score) or paused.  Only a capped selector
     (``contextual_capped`` built with checks and a finite cap, :attr:`capped`) gives
-    finite allowances; it may
-    later propose a paused column again, with a larger allowance, to resume it.  Its
-    choices are those of :func:`box_core.tries.simulate` (the same ``propose_tries`` and
-    ``record``), given the same outcomes.
+    finite allowances; it may later propose a paused column again, with a larger
+    allowance, to resume it.  Its choices are those of :func:`box_core.tries.simulate`
+    (the same ``propose_tries`` and ``record``), given the same outcomes.
     """
 
     def __init__(self, policy: Policy, unit: float = 1.0):
