@@ -897,7 +897,8 @@ def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores
     sequence of ints) seeds ``rand`` and ``doo``.  Further keyword arguments are the
     selector's parameters (``c`` for box, ``lam`` for doo, ``delta`` for pembo,
     ``prior_rows``, ``mismatch`` and ``time_rows`` for eips; ``k``, ``mismatch``,
-    ``prior_rows`` and ``c`` for contextual).
+    ``prior_rows``, ``c`` and ``select_features`` for contextual, with ``cap_quantile`` for
+    contextual_capped).
 
     ``instance_features`` (n x q, the training rows') and ``new_instance_features`` (q,),
     the new instance's) feed ``contextual``: settings not given are tuned on the training
