@@ -279,8 +279,12 @@ class Contextual(Box):
     def update(self, cols: np.ndarray, scores: np.ndarray) -> None:
         if self._model is None:
             return super().update(cols, scores)
-        outcome = np.where(scores > self._threshold, FEASIBLE, FAILED)
-        self.record(cols, outcome, scores)
+        self.record(cols, self.outcome_of_scores(scores), scores)
+
+    def outcome_of_scores(self, scores: np.ndarray) -> np.ndarray:
+        """FEASIBLE or FAILED of ended tries by their scores (internal unit): above the
+        training rows' threshold between failures and plans."""
+        return np.where(scores > self._threshold, FEASIBLE, FAILED)
 
     def settled(self) -> np.ndarray:
         done = super().settled()

@@ -29,6 +29,7 @@ from box_core.gaussian import (
     argmax_untried,
 )
 from box_core.prior import FoldPriors, Prior
+from box_core.tries import PAUSED
 
 SELECTORS: dict[str, type[Policy]] = {}
 
@@ -736,12 +737,27 @@ def standardise(scores, unit: float) -> np.ndarray:
 
 
 class Selector:
-    """A live selector for one new instance: ``propose()`` a column, then ``update`` it."""
+    """A live selector for one new instance.
+
+    Uncapped: ``propose()`` a column, then ``update`` it with its score.  Every selector
+    also offers tries with a check allowance, the one loop for all of them:
+    ``propose_try()`` gives (column, allowance), the caller plans that column until it has
+    used ``allowance`` collision checks in all (math.inf: to the end) and reports
+    (:meth:`report`) whether it ended (its score) or paused.  Only a capped selector
+    (``contextual_capped`` built with checks and a finite cap, :attr:`capped`) gives
+    finite allowances; it may later propose a paused column again, with a larger
+    allowance, to resume it.  Its choices are those of :func:`box_core.tries.simulate`
+    (the same ``propose_tries`` and ``record``), given the same outcomes.
+    """
 
     def __init__(self, policy: Policy, unit: float = 1.0):
         self._policy = policy
         self._unit = unit
+        #: (column, score) of every try that ended, in order
         self.history: list[tuple[int, float]] = []
+        #: (column, allowance, score or None when paused, checks_used or None) of every try
+        self.tries: list[tuple[int, float, float | None, int | None]] = []
+        self._pending: tuple[int, float] | None = None
 
     @property
     def name(self) -> str:
@@ -753,32 +769,120 @@ class Selector:
 
     @property
     def tried(self) -> np.ndarray:
-        """Boolean mask (m,) of the columns tried so far."""
+        """Boolean mask (m,) of the columns tried so far (paused ones included)."""
         return self._policy.tried[0].copy()
+
+    @property
+    def capped(self) -> bool:
+        """Whether :meth:`propose_try` may give finite allowances (then use it, not
+        :meth:`propose`)."""
+        return math.isfinite(getattr(self._policy, "cap", math.inf))
 
     def propose(self) -> int:
         """The next column to try (never one already tried)."""
-        if len(self.history) == self.m:
-            raise RuntimeError(f"all {self.m} constraints have been tried")
+        if self.capped:
+            raise RuntimeError(f"selector {self.name!r} gives capped tries: use propose_try "
+                               "and report")
+        self._check_left()
         return int(self._policy.propose()[0])
 
     def update(self, index: int, score: float) -> None:
         """Report the score observed for column ``index`` (failed plans: the failure value)."""
+        if self.capped:
+            raise RuntimeError(f"selector {self.name!r} gives capped tries: use propose_try "
+                               "and report")
+        index = self._column(index)
+        if self._policy.tried[0, index]:
+            raise ValueError(f"index {index}: that constraint was already tried")
+        score = _finite_score(score)
+        self._policy.update(np.array([index]), standardise(np.array([score]), self._unit))
+        self.history.append((index, score))
+        self.tries.append((index, math.inf, score, None))
+        self._pending = None
+
+    def propose_try(self) -> tuple[int, float]:
+        """(column, allowance) of the next try: plan ``column`` until it has used
+        ``allowance`` collision checks in all, counted from its first slice (math.inf: to
+        its end; a paused column proposed again is resumed).  Asking again before
+        :meth:`report` gives the same try."""
+        if self._pending is None:
+            self._check_left()
+            if hasattr(self._policy, "propose_tries"):
+                cols, allow = self._policy.propose_tries()
+                self._pending = (int(cols[0]), float(allow[0]))
+            else:
+                self._pending = (int(self._policy.propose()[0]), math.inf)
+        return self._pending
+
+    def report(self, column: int, *, score: float | None = None, paused: bool = False,
+               checks_used: int | None = None) -> None:
+        """Report the try of :meth:`propose_try`: ``score`` when it ended (failed plans:
+        the failure value), or ``paused=True`` (no score) when it stopped at its
+        allowance.  ``checks_used`` (optional): the checks it has used in all; a paused
+        try may have used more than its allowance (a planner pauses between two steps of
+        its search), and the selector then takes that allowance as the one granted: its
+        choices depend only on the outcomes, as in :func:`box_core.tries.simulate`."""
+        column = self._column(column)
+        if self._pending is None:
+            raise ValueError("no try is pending: call propose_try first")
+        want, allowance = self._pending
+        if column != want:
+            raise ValueError(f"column {column} was not proposed (the pending try is "
+                             f"column {want})")
+        if not isinstance(paused, bool | np.bool_):
+            raise ValueError(f"paused must be True or False, got {paused!r}")
+        if checks_used is not None:
+            if (isinstance(checks_used, bool)
+                    or not isinstance(checks_used, int | np.integer) or checks_used < 0):
+                raise ValueError(f"checks_used must be a whole number >= 0, got "
+                                 f"{checks_used!r}")
+            checks_used = int(checks_used)
+        if paused:
+            if score is not None:
+                raise ValueError(f"column {column}: a paused try has no score")
+            if math.isinf(allowance):
+                raise ValueError(f"column {column}: an uncapped try cannot pause")
+            if checks_used is not None and checks_used < allowance:
+                raise ValueError(f"column {column}: a paused try has used its allowance "
+                                 f"({allowance:g} checks), got checks_used={checks_used}")
+            value = 0.0  # ignored: a paused try observes nothing
+        else:
+            if score is None:
+                raise ValueError(f"column {column}: a try that ended needs its score")
+            value = score = _finite_score(score)
+        internal = standardise(np.array([value]), self._unit)
+        if hasattr(self._policy, "record"):
+            outcome = (np.array([PAUSED]) if paused
+                       else self._policy.outcome_of_scores(internal))
+            self._policy.record(np.array([column]), outcome, internal)
+        else:
+            self._policy.update(np.array([column]), internal)
+        self._pending = None
+        self.tries.append((column, allowance, score, checks_used))
+        if not paused:
+            self.history.append((column, score))
+
+    def _check_left(self) -> None:
+        if len(self.history) == self.m:
+            raise RuntimeError(f"all {self.m} constraints have been tried")
+
+    def _column(self, index) -> int:
         if isinstance(index, bool) or not isinstance(index, int | np.integer):
             raise ValueError(f"index must be an integer constraint index, got {index!r}")
         index = int(index)
         if not 0 <= index < self.m:
             raise ValueError(f"index {index} out of range for {self.m} constraints")
-        if self._policy.tried[0, index]:
-            raise ValueError(f"index {index}: that constraint was already tried")
-        try:
-            score = float(score)
-        except (TypeError, ValueError):
-            raise ValueError(f"score must be a finite number, got {score!r}") from None
-        if not math.isfinite(score):
-            raise ValueError(f"score must be finite, got {score!r}")
-        self._policy.update(np.array([index]), standardise(np.array([score]), self._unit))
-        self.history.append((index, score))
+        return index
+
+
+def _finite_score(score) -> float:
+    try:
+        score = float(score)
+    except (TypeError, ValueError):
+        raise ValueError(f"score must be a finite number, got {score!r}") from None
+    if not math.isfinite(score):
+        raise ValueError(f"score must be finite, got {score!r}")
+    return score
 
 
 def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores=None,
@@ -793,13 +897,15 @@ def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores
     sequence of ints) seeds ``rand`` and ``doo``.  Further keyword arguments are the
     selector's parameters (``c`` for box, ``lam`` for doo, ``delta`` for pembo,
     ``prior_rows``, ``mismatch`` and ``time_rows`` for eips; ``k``, ``mismatch``,
-    ``prior_rows`` and ``c`` for contextual).
+    ``prior_rows``, ``c`` and ``select_features`` for contextual, with ``cap_quantile`` for
+    contextual_capped).
 
     ``instance_features`` (n x q, the training rows') and ``new_instance_features`` (q,),
     the new instance's) feed ``contextual``: settings not given are tuned on the training
     rows (:func:`box_core.contextual.tune`; ``checks`` (n x m) are the training rows'
-    collision checks, which only capped tries use; the live selector's tries are
-    uncapped).  Without them, or with q = 0, ``contextual`` is BOX.
+    collision checks, which only capped tries use: ``contextual_capped`` keeps its tuned
+    cap, so use :meth:`Selector.propose_try` and :meth:`Selector.report` with it).
+    Without them, or with q = 0, ``contextual`` is BOX.
     """
     D = validation.score_matrix(train_scores, name="train_scores", min_rows=2)
     unit = score_unit(D)
@@ -816,7 +922,9 @@ def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores
         times, D.shape, name="times", ref="train_scores")
     if (T < 0).any():
         raise ValueError("times must be >= 0")
-    outcomes = TrainingOutcomes.of(D, F, T, [-1])
+    C = None if checks is None else validation.checks_matrix(checks, D.shape,
+                                                              ref="train_scores")
+    outcomes = TrainingOutcomes.of(D, F, T, [-1], C)
     truth = true_t = true_f = None
     if cls.needs_truth:
         if true_scores is None:
@@ -838,8 +946,6 @@ def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores
     elif new_instance_features is not None:
         raise ValueError("new_instance_features needs instance_features (the training "
                          "rows' features)")
-    C = None if checks is None else validation.checks_matrix(checks, D.shape,
-                                                              ref="train_scores")
     ctx = FoldContext(prior=prior.batch(), seeds=[seed], features=features, true_scores=truth,
                       outcomes=outcomes, true_times=true_t, true_feasible=true_f,
                       instance_features=X, query=query)
@@ -847,5 +953,4 @@ def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores
         from box_core.contextual import tune
 
         params = tune(cls, D, F, T, C, X, params, seed=seed if isinstance(seed, int) else 0)
-        params.pop("cap", None)  # live tries are uncapped
     return Selector(cls(ctx, **params), unit)
