@@ -312,7 +312,12 @@ class ScoreStore(Readers, BlockWrites, Verification):
         recorded); {} before layout 3."""
         if not self.has(result_key(group, ENVIRONMENT)):
             return {}
-        values = self.array(result_key(group, ENVIRONMENT))[...][self.done(group)]
+        done = self.done(group)
+        array = self.array(result_key(group, ENVIRONMENT))
+        if array.shape != done.shape:  # a damaged document: never read what it claims
+            raise StoreError(f"{result_key(group, ENVIRONMENT)}: shape {array.shape}, not "
+                             f"the store's {done.shape}")
+        values = array[...][done]
         found, counts = np.unique(values, return_counts=True)
         return {int(k): int(c) for k, c in zip(found, counts, strict=True)}
 
