@@ -7,7 +7,13 @@ array; depends on numpy and scipy only.
 from box_core.failure import failure_value, fill_failures
 from box_core.loocv import DEFAULT_SELECTORS, LoocvResult, holdout, loocv
 from box_core.prior import Prior
-from box_core.selectors import SELECTOR_REVISION, SELECTORS, Selector, make_selector
+from box_core.selectors import (
+    SELECTOR_REVISION,
+    SELECTORS,
+    Selector,
+    make_selector,
+    tuned_settings,
+)
 from box_core.summary import Summary, curve_summary
 from box_core.tuning import CTuning, learning_curve, tune_c
 
@@ -27,5 +33,6 @@ __all__ = [
     "learning_curve",
     "loocv",
     "make_selector",
+    "tuned_settings",
     "tune_c",
 ]

@@ -885,9 +885,45 @@ def _finite_score(score) -> float:
     return score
 
 
+def _training_rows(train_scores, feasible, times, checks):
+    """(scores in the internal unit, the unit, feasibility, times, checks) of checked
+    training rows (see :func:`make_selector`)."""
+    D = validation.score_matrix(train_scores, name="train_scores", min_rows=2)
+    unit = score_unit(D)
+    D = standardise(D, unit)
+    if feasible is None:
+        F = D > D.min()
+    else:
+        F = validation.boolean_matrix(feasible, D.shape, name="feasible", ref="train_scores")
+    T = np.ones(D.shape) if times is None else validation.matching_matrix(
+        times, D.shape, name="times", ref="train_scores")
+    if (T < 0).any():
+        raise ValueError("times must be >= 0")
+    C = None if checks is None else validation.checks_matrix(checks, D.shape,
+                                                              ref="train_scores")
+    return D, unit, F, T, C
+
+
+def tuned_settings(name: str, train_scores, *, times=None, feasible=None, checks=None,
+                   instance_features=None, seed: int = 0, **params) -> dict:
+    """The settings :func:`make_selector` would tune for selector ``name`` on these training
+    rows (``{}`` for a selector that tunes nothing).  They depend on the training rows
+    only, so a caller serving many new instances tunes once and passes them to each
+    :func:`make_selector` as ``settings=``."""
+    cls = check_selector(name, params, features=None)
+    if getattr(cls, "tuned", None) is None:
+        return {}
+    D, _, F, T, C = _training_rows(train_scores, feasible, times, checks)
+    X = None if instance_features is None else validation.instance_features(
+        instance_features, D.shape[0], ref="train_scores")
+    from box_core.contextual import tune
+
+    return tune(cls, D, F, T, C, X, params, seed=seed)
+
+
 def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores=None,
                   times=None, feasible=None, true_times=None, instance_features=None,
-                  new_instance_features=None, checks=None, **params):
+                  new_instance_features=None, checks=None, settings=None, **params):
     """Build selector ``name`` from a training score matrix (n x m, failures already scored).
 
     ``features`` (m x p) are needed by ``doo``; ``times`` (n x m, seconds per try) and
@@ -905,25 +941,14 @@ def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores
     rows (:func:`box_core.contextual.tune`; ``checks`` (n x m) are the training rows'
     collision checks, which only capped tries use: ``contextual_capped`` keeps its tuned
     cap, so use :meth:`Selector.propose_try` and :meth:`Selector.report` with it).
-    Without them, or with q = 0, ``contextual`` is BOX.
+    Without them, or with q = 0, ``contextual`` is BOX.  ``settings``: what
+    :func:`tuned_settings` returned for the same training rows (tuning is then skipped).
     """
-    D = validation.score_matrix(train_scores, name="train_scores", min_rows=2)
-    unit = score_unit(D)
-    D = standardise(D, unit)
+    D, unit, F, T, C = _training_rows(train_scores, feasible, times, checks)
     prior = Prior.fit(D)
     if features is not None:
         features = validation.feature_matrix(features, prior.m)
     cls = check_selector(name, params, features=features)
-    if feasible is None:
-        F = D > D.min()
-    else:
-        F = validation.boolean_matrix(feasible, D.shape, name="feasible", ref="train_scores")
-    T = np.ones(D.shape) if times is None else validation.matching_matrix(
-        times, D.shape, name="times", ref="train_scores")
-    if (T < 0).any():
-        raise ValueError("times must be >= 0")
-    C = None if checks is None else validation.checks_matrix(checks, D.shape,
-                                                              ref="train_scores")
     outcomes = TrainingOutcomes.of(D, F, T, [-1], C)
     truth = true_t = true_f = None
     if cls.needs_truth:
@@ -949,7 +974,12 @@ def make_selector(name: str, train_scores, *, features=None, seed=0, true_scores
     ctx = FoldContext(prior=prior.batch(), seeds=[seed], features=features, true_scores=truth,
                       outcomes=outcomes, true_times=true_t, true_feasible=true_f,
                       instance_features=X, query=query)
-    if getattr(cls, "tuned", None) is not None:
+    if settings is not None:
+        if getattr(cls, "tuned", None) is None or params:
+            raise ValueError(f"settings= is for a tuned selector's tuned_settings, without "
+                             f"other parameters (selector {name!r})")
+        params = dict(settings)
+    elif getattr(cls, "tuned", None) is not None:
         from box_core.contextual import tune
 
         params = tune(cls, D, F, T, C, X, params, seed=seed if isinstance(seed, int) else 0)

@@ -119,8 +119,8 @@ RAWPLANNER = "rawplanner"
 @dataclass
 class EvaluateConfig:
     selectors: list[str] = field(
-        default_factory=lambda: ["box", "eips", "static", "rand", "doo", "pembo", "oracle",
-                                 "fastest", RAWPLANNER])
+        default_factory=lambda: ["box", "contextual", "contextual_capped", "eips", "static",
+                                 "rand", "doo", "pembo", "oracle", "fastest", RAWPLANNER])
     k: int | None = None  # tries per held-out instance; null = all m
     c: float = 1.96
     failure_rule: str = "magnitude"
@@ -143,7 +143,8 @@ class ReportConfig:
 @dataclass
 class SolveConfig:
     n: int = 20  # fresh instances (seeds never used in the store)
-    selectors: list[str] = field(default_factory=lambda: ["box", "eips", "static"])
+    selectors: list[str] = field(
+        default_factory=lambda: ["box", "contextual", "contextual_capped", "eips", "static"])
     max_evaluations: int | None = 50  # planning calls per instance and selector; null = m
     max_seconds: float | None = None  # wall-clock budget per instance and selector
     use_incomplete: bool = False  # fit on the completed rows of an unfinished store

@@ -10,7 +10,16 @@ from pipeline.configs import RAWPLANNER
 from pipeline.context import StageContext
 from pipeline.store import evaluation as evaluation_store
 from pipeline.store.evaluation import StoredEvaluation, raw_curve
-from pipeline.store.layout import FEASIBLE, LENGTH, RAW, SCORES, SOURCE_INSTANCE, TIME, result_key
+from pipeline.store.layout import (
+    CHECKS,
+    FEASIBLE,
+    LENGTH,
+    RAW,
+    SCORES,
+    SOURCE_INSTANCE,
+    TIME,
+    result_key,
+)
 from pipeline.tables import summary_table
 
 
@@ -24,6 +33,13 @@ def own_constraints(store) -> np.ndarray | None:
         return None
     n = store.array(result_key(SCORES, FEASIBLE)).shape[0]
     return source[None, :] == np.arange(n)[:, None]
+
+
+def instance_features(store) -> np.ndarray | None:
+    """The store's instance features (n, q) for the contextual selectors, or None when its
+    domain declares none (those selectors are then BOX)."""
+    found = store.instance_features()
+    return None if found is None else found.values
 
 
 def stored_revision(info: dict) -> int:
@@ -63,7 +79,9 @@ def evaluate(ctx: StageContext) -> None:
         result = box_core.loocv(scores, times=times, feasible=feasible, features=theta,
                                 selectors=names, k=settings["k"], seed=ctx.seed,
                                 params=selector_params(names, settings),
-                                failure_rule=settings["failure_rule"], forbidden=hide)
+                                failure_rule=settings["failure_rule"], forbidden=hide,
+                                instance_features=instance_features(store),
+                                checks=store.result(SCORES, CHECKS))
     except ValueError as exc:
         raise ValueError(f"evaluate: {exc}") from None
     others, curves = {}, {}

@@ -24,7 +24,7 @@ from pipeline.context import StageContext
 from pipeline.report import fmt
 from pipeline.report.figures import label
 from pipeline.store import ScoreStore, StoreError
-from pipeline.store.layout import SCORES
+from pipeline.store.layout import CHECKS, SCORES
 
 #: Fresh instance i of run ``seed`` is drawn from SeedSequence([seed, SOLVE_STREAM, i]);
 #: the store's instances use SeedSequence([seed, i]).  Collisions are skipped explicitly.
@@ -45,7 +45,7 @@ def fresh_seeds(seed: int, n: int, used) -> list[int]:
 
 def training_matrix(store: ScoreStore, use_incomplete: bool, failure_rule: str):
     """(filled scores of the usable rows, their feasibility and times, theta, failure
-    value, rows used)."""
+    value, rows used).  :func:`training_context` reads those rows' features and checks."""
     if store.stage_info("constraints") is None or not store.has_results(SCORES):
         raise StoreError(f"{store.path} has no score matrix yet; run stage=generate first")
     done = store.done(SCORES)
@@ -70,15 +70,51 @@ def training_matrix(store: ScoreStore, use_incomplete: bool, failure_rule: str):
             np.flatnonzero(complete))
 
 
+def training_context(store: ScoreStore, rows: np.ndarray) -> tuple:
+    """(instance features (rows, q) or None, collision checks (rows, m)) of the training
+    rows: what the contextual selectors learn besides the scores."""
+    found = store.instance_features()
+    features = None if found is None else found.values[rows]
+    return features, store.result(SCORES, CHECKS)[rows]
+
+
+def selector_settings(names: list[str], train, train_feasible, train_times, train_checks,
+                      train_features, c: float) -> dict[str, dict]:
+    """Each selector's parameters for :func:`box_core.make_selector`: BOX's C, and the
+    settings a tuned selector (contextual) chooses on the training rows, tuned once here
+    rather than for every instance (the same settings: they depend on those rows only)."""
+    out = {}
+    for name in names:
+        if name == "box":
+            out[name] = {"c": c}
+        elif getattr(box_core.SELECTORS[name], "tuned", None) is not None:
+            out[name] = {"settings": box_core.tuned_settings(
+                name, train, feasible=train_feasible, times=train_times, checks=train_checks,
+                instance_features=train_features)}
+        else:
+            out[name] = {}
+    return out
+
+
 def solve_instance(spec: dict, instance: dict, inst_seed: int, run_seed: int, train, theta,
-                   d: float, selectors: list[str], c: float, max_evaluations: int,
-                   max_seconds: float | None, order_flip: bool = False,
-                   train_feasible=None, train_times=None) -> dict:
-    """One fresh instance: every selector live, then RAWPLANNER (runs in a worker)."""
+                   d: float, selectors: list[str], params: dict[str, dict],
+                   max_evaluations: int, max_seconds: float | None, order_flip: bool = False,
+                   train_feasible=None, train_times=None, train_checks=None,
+                   train_features=None) -> dict:
+    """One fresh instance: every selector live, then RAWPLANNER (runs in a worker).
+
+    A selector's try may be capped (contextual_capped): it runs as a planning try
+    (:meth:`Domain.start_try`) that pauses at its allowance of collision checks and, when
+    the selector proposes it again, resumes where it stopped.  ``max_evaluations``
+    counts the tries that ended; the times include the paused slices."""
     from pipeline.worker import RAW_ENTRY, domain_for, entry_seed
 
     domain = domain_for(spec)
     inst = domain.check_instance(instance)
+    context = {}
+    if train_features is not None:
+        context = {"instance_features": train_features,
+                   "new_instance_features": domain.instance_features(inst)}
     # untimed warm-up: the worker's simulator loads this instance (and on its first task
     # builds its scene) here, not inside whichever method happens to run first
     domain.plan(inst, theta[0], seed=entry_seed(run_seed, inst_seed, 0))
@@ -92,18 +128,37 @@ def solve_instance(spec: dict, instance: dict, inst_seed: int, run_seed: int, tr
                                                                    RAW_ENTRY), d)
             continue
         k = selectors.index(name)
-        params = {"c": c} if name == "box" else {}
         sel = box_core.make_selector(name, train, features=theta, seed=[run_seed, inst_seed, k],
-                                     feasible=train_feasible, times=train_times, **params)
+                                     feasible=train_feasible, times=train_times,
+                                     checks=train_checks, **context, **params[name])
         tries, best, first = [], None, math.nan
+        paused: dict[int, object] = {}  # column -> its planning try
+        ended = 0
         start = time.perf_counter()
-        for _ in range(min(max_evaluations, theta.shape[0])):
-            j = sel.propose()
-            plan = domain.plan(inst, theta[j], seed=entry_seed(run_seed, inst_seed, j))
-            sel.update(j, plan.score if plan.feasible else d)
+        while ended < min(max_evaluations, theta.shape[0]):
+            j, allowance = sel.propose_try()
+            if math.isinf(allowance) and j not in paused:
+                plan = domain.plan(inst, theta[j], seed=entry_seed(run_seed, inst_seed, j))
+                slice_time = plan.time
+            else:
+                attempt = paused.pop(j, None) or domain.start_try(
+                    inst, theta[j], seed=entry_seed(run_seed, inst_seed, j))
+                t0 = time.perf_counter()
+                plan = attempt.advance(None if math.isinf(allowance) else int(allowance))
+                slice_time = time.perf_counter() - t0
+                if plan is None:
+                    paused[j] = attempt
+                    sel.report(j, paused=True)
+                    tries.append({"constraint": j, "status": "paused", "time": slice_time,
+                                  "allowance": int(allowance), "length": None})
+                    if max_seconds is not None and time.perf_counter() - start >= max_seconds:
+                        break
+                    continue
+            ended += 1
+            sel.report(j, score=plan.score if plan.feasible else d)
             elapsed = time.perf_counter() - start
             tries.append({"constraint": j, "status": plan.status.name.lower(),
-                          "time": plan.time, "length": plan.length if plan.feasible else None})
+                          "time": slice_time, "length": plan.length if plan.feasible else None})
             if plan.feasible:
                 if math.isnan(first):
                     first = elapsed
@@ -111,6 +166,7 @@ def solve_instance(spec: dict, instance: dict, inst_seed: int, run_seed: int, tr
                     best = (j, plan)
             if max_seconds is not None and elapsed >= max_seconds:
                 break
+        paused.clear()  # frees the searches of tries never resumed
         out["selectors"][name] = {
             "first_feasible_time": first, "tries": tries,
             "first_feasible_try": next((t + 1 for t, r in enumerate(tries) if r["length"]
@@ -198,6 +254,9 @@ def solve(ctx: StageContext, out_dir: Path) -> dict:
     spec = store.domain_spec()
     train, train_feasible, train_times, theta, d, rows = training_matrix(
         store, settings["use_incomplete"], ctx.config["evaluate"]["failure_rule"])
+    train_features, train_checks = training_context(store, rows)
+    params = selector_settings(names, train, train_feasible, train_times, train_checks,
+                               train_features, ctx.config["evaluate"]["c"])
     seed = int(store.attrs["config"]["seed"])
     domain = domain_for(spec)
     seeds = fresh_seeds(seed, settings["n"], store.instance_seeds())
@@ -207,9 +266,9 @@ def solve(ctx: StageContext, out_dir: Path) -> dict:
     records: dict[int, dict] = {}
     max_eval = budget or theta.shape[0]
     tasks = [Task(key=f"solve-{ctx.token}-{k}-{s}", fn=solve_instance,
-                  args=(spec, instances[k], s, seed, train, theta, d, names,
-                        ctx.config["evaluate"]["c"], max_eval, settings["max_seconds"],
-                        k % 2 == 1, train_feasible, train_times),
+                  args=(spec, instances[k], s, seed, train, theta, d, names, params,
+                        max_eval, settings["max_seconds"], k % 2 == 1, train_feasible,
+                        train_times, train_checks, train_features),
                   entries=1, block=k) for k, s in enumerate(seeds)]
     run_tasks(ctx.client(), tasks, lambda task, rec: records.__setitem__(task.block, rec),
               retries=ctx.retries, label="solve", console=ctx.console,

@@ -91,8 +91,8 @@ def test_report_tables_hold_the_store_s_numbers(made):
     assert dataset[1][6] == f"{int(feasible.any(axis=1).sum())}/24"
 
     rows = {r[0]: r for r in md_table(md, "## Time to first feasible plan")[1:]}
-    assert set(rows) == {"BOX", "EIPS", "STATIC", "RAND", "DOO", "PEM-BO", "ORACLE", "FASTEST",
-                         "RAWPLANNER"}
+    assert set(rows) == {"BOX", "CONTEXTUAL", "CONTEXTUAL+CAPS", "EIPS", "STATIC", "RAND", "DOO",
+                         "PEM-BO", "ORACLE", "FASTEST", "RAWPLANNER"}
     assert float(rows["FASTEST"][2]) <= min(float(r[2]) for r in rows.values())
     assert "Leave-one-out without leakage" in md
     direct = box_core.loocv(scores, feasible=feasible, times=times, selectors=("box", "static"),
@@ -177,9 +177,9 @@ def test_solve_runs_fresh_instances_live_and_saves_the_best_plans(made, tmp_path
     stored = zarr.open_array(store / "instances" / "seed", mode="r")[...]
     assert len(seeds) == 4 and not set(seeds) & set(stored.tolist())
     assert doc["training_rows"] == 24
-    for name, row in zip(("BOX", "EIPS", "STATIC", "RAWPLANNER"), doc["table"]["rows"],
-                         strict=True):
-        key = name.lower()
+    methods = {"BOX": "box", "CONTEXTUAL": "contextual", "CONTEXTUAL+CAPS": "contextual_capped",
+               "EIPS": "eips", "STATIC": "static", "RAWPLANNER": "rawplanner"}
+    for (name, key), row in zip(methods.items(), doc["table"]["rows"], strict=True):
         solved = sum(r["selectors"][key]["first_feasible_time"] is not None
                      for r in doc["records"])
         assert row[0] == name and row[1] == f"{solved}/4"

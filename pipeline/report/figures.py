@@ -20,10 +20,12 @@ from pipeline.configs import RAWPLANNER
 #: How selectors are named and coloured in every figure and table.
 LABELS = {"box": "BOX", "eips": "EIPS", "static": "STATIC", "rand": "RAND", "doo": "DOO",
           "pembo": "PEM-BO", "oracle": "ORACLE", "fastest": "FASTEST",
+          "contextual": "CONTEXTUAL", "contextual_capped": "CONTEXTUAL+CAPS",
           RAWPLANNER: "RAWPLANNER"}
 COLOURS = {"box": "tab:red", "eips": "tab:orange", "static": "tab:blue", "rand": "tab:gray",
            "doo": "tab:green", "pembo": "tab:purple", "oracle": "magenta",
-           "fastest": "tab:cyan", RAWPLANNER: "tab:brown"}
+           "fastest": "tab:cyan", "contextual": "tab:olive", "contextual_capped": "darkgreen",
+           RAWPLANNER: "tab:brown"}
 
 #: Oracles see the held-out truth: no bars or curves of their own, only reference lines.
 ORACLES = ("oracle", "fastest")

@@ -163,8 +163,8 @@ STAGE_INPUTS = {
     RAW: (INSTANCE_SEED, INSTANCE_SPEC),
     CONSTRAINTS: (RAW_CONSTRAINT,),
     SCORES: (INSTANCE_SEED, INSTANCE_SPEC, THETA),
-    "evaluate": (*(result_key(SCORES, k) for k in (FEASIBLE, LENGTH, TIME)), THETA,
-                 result_key(RAW, FEASIBLE), result_key(RAW, TIME)),
+    "evaluate": (*(result_key(SCORES, k) for k in (FEASIBLE, LENGTH, TIME, CHECKS)), THETA,
+                 result_key(RAW, FEASIBLE), result_key(RAW, TIME), INSTANCE_FEATURES),
 }
 
 # -- attributes and coordinates ---------------------------------------------------------------
