@@ -27,6 +27,8 @@ DEFAULT_NAMES: dict[str, tuple[str, ...]] = {
     "feasible": ("feasible",),
     "features": ("features", "theta"),
     "forbidden": ("forbidden",),
+    "instance_features": ("instance_features",),
+    "checks": ("checks",),
 }
 
 SUFFIXES = (".npz", ".mat")
@@ -41,6 +43,11 @@ class MatrixFile:
     #: (n x m) bool: columns row i may not try in leave-one-out (``box export`` writes the
     #: constraints extracted from row i's own raw solution here)
     forbidden: np.ndarray | None = None
+    #: (n x q) features of each instance (the contextual selectors'; ``box export`` writes
+    #: a store's here)
+    instance_features: np.ndarray | None = None
+    #: (n x m) collision checks each entry used (capped tries)
+    checks: np.ndarray | None = None
 
 
 def load_matrix(
@@ -51,6 +58,8 @@ def load_matrix(
     feasible: str | None = None,
     features: str | None = None,
     forbidden: str | None = None,
+    instance_features: str | None = None,
+    checks: str | None = None,
 ) -> MatrixFile:
     """Read a score matrix and its optional companions from ``path``.
 
@@ -70,7 +79,7 @@ def load_matrix(
     if path.stat().st_size == 0:
         raise ValueError(f"{path}: cannot read as {suffix} (the file is empty)")
     wanted = {"scores": scores, "times": times, "feasible": feasible, "features": features,
-              "forbidden": forbidden}
+              "forbidden": forbidden, "instance_features": instance_features, "checks": checks}
     with _opened(path, suffix) as arrays:
         chosen = {role: _pick(path, arrays, role, name) for role, name in wanted.items()}
         if chosen["scores"] is None:

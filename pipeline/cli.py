@@ -15,7 +15,14 @@ import box_core
 from box_core import synthetic
 from box_core.io import MatrixFile, load_matrix
 from pipeline.store import ScoreStore, StoreDamaged, StoreError
-from pipeline.store.layout import FEASIBLE, INSTANCE_SEED, INSTANCE_SPEC, SCORES, THETA
+from pipeline.store.layout import (
+    CHECKS,
+    FEASIBLE,
+    INSTANCE_SEED,
+    INSTANCE_SPEC,
+    SCORES,
+    THETA,
+)
 from pipeline.store.storage_errors import translated
 from pipeline.tables import stdout_console, summary_table
 
@@ -87,6 +94,11 @@ def evaluate(
                                      "feasible when present)."),
     features_var: str = typer.Option(None, help="Name of the constraint features, m x p "
                                      "(default: features or theta when present)."),
+    instance_features_var: str = typer.Option(
+        None, help="Name of the instance features, n x q, for the contextual selectors "
+        "(default: instance_features when present)."),
+    checks_var: str = typer.Option(None, help="Name of the collision checks per entry, n x "
+                                   "m, for capped tries (default: checks when present)."),
     overhead: bool = typer.Option(True, help="Add the selectors' own compute time to times."),
     as_json: bool = typer.Option(False, "--json", help="Print the result as JSON."),
 ):
@@ -108,7 +120,9 @@ def evaluate(
                 data, forbidden = read_export(file)
             else:
                 data = load_matrix(file, scores=scores_var, times=times_var,
-                                   feasible=feasible_var, features=features_var)
+                                   feasible=feasible_var, features=features_var,
+                                   instance_features=instance_features_var,
+                                   checks=checks_var)
         except (FileNotFoundError, ValueError, StoreError) as exc:
             _fail(str(exc))
     names = [s.strip() for s in selectors.split(",") if s.strip()]
@@ -128,9 +142,12 @@ def _store_matrix(path: Path) -> tuple[MatrixFile, np.ndarray | None]:
     if store.stage_info("scores") is None:
         raise StoreError(f"{path}: the score matrix is not complete; finish it with "
                          "python -m pipeline stage=generate")
+    from pipeline.evaluation import instance_features
+
     scores, feasible, times, theta = store.score_matrix()
-    return (MatrixFile(scores=scores, times=times, feasible=feasible, features=theta),
-            own_constraints(store))
+    return (MatrixFile(scores=scores, times=times, feasible=feasible, features=theta,
+                       instance_features=instance_features(store),
+                       checks=store.result(SCORES, CHECKS)), own_constraints(store))
 
 
 def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, seed=0,
@@ -151,6 +168,7 @@ def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, 
             data.scores, times=data.times, feasible=data.feasible, features=data.features,
             selectors=names, k=k, seed=seed, params=params, failure_rule=failure_rule,
             measure_overhead=overhead, forbidden=forbidden,
+            instance_features=data.instance_features, checks=data.checks,
         )
     except ValueError as exc:
         _fail(f"{file}: {exc}")

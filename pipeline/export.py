@@ -338,12 +338,15 @@ def read_export(path: Path):
                    "features": np.asarray(doc["features"], dtype=float)}
             if "forbidden" in frame:
                 get["forbidden"] = matrix("forbidden", False, bool)
+            if "checks" in frame:
+                get["checks"] = matrix("checks", 0, np.int64)
     except Exception as exc:  # noqa: BLE001 (any unreadable file: one line)
         raise ValueError(f"{path}: cannot read as a box export ({exc})") from None
     if "scores" not in get:
         raise ValueError(f"{path}: no scores in this file; is it a box export?")
     data = MatrixFile(scores=get["scores"], times=get.get("times"),
-                      feasible=get.get("feasible"), features=get.get("features"))
+                      feasible=get.get("feasible"), features=get.get("features"),
+                      instance_features=get.get("instance_features"), checks=get.get("checks"))
     return data, get.get("forbidden")
 
 

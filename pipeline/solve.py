@@ -158,7 +158,8 @@ def solve_instance(spec: dict, instance: dict, inst_seed: int, run_seed: int, tr
             sel.report(j, score=plan.score if plan.feasible else d)
             elapsed = time.perf_counter() - start
             tries.append({"constraint": j, "status": plan.status.name.lower(),
-                          "time": slice_time, "length": plan.length if plan.feasible else None})
+                          "time": slice_time, "length": plan.length if plan.feasible else None,
+                          "allowance": None if math.isinf(allowance) else int(allowance)})
             if plan.feasible:
                 if math.isnan(first):
                     first = elapsed
