@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -21,7 +22,9 @@ from box_core.synthetic import score_matrix
 from pipeline.configs import CONF_DIR, register_configs
 from pipeline.domains.cache import domain_for
 from pipeline.solve import solve_instance
+from pipeline.store import evaluation as evaluation_store
 from pipeline.store.readers import domain_spec_of
+from pipeline.store.score_store import ScoreStore
 from pipeline.worker import entry_seed
 
 CONTEXTUAL = ("contextual", "contextual_capped")
@@ -107,3 +110,24 @@ def test_live_capped_tries_pause_resume_and_end_as_uninterrupted_calls(grasp_arm
             assert t["status"] == whole.status.name.lower()
             assert t["length"] == (whole.length if whole.feasible else None)
     assert paused_seen > 0 and resumed > 0
+
+
+def test_a_capped_order_longer_than_the_others_is_stored_with_theirs_padded(made, tmp_path):
+    """CONTEXTUAL+CAPS may try a column twice (paused, then resumed), so its order can be
+    up to 2m wide while the others' are m: ``evaluation/`` holds the longest, the others
+    padded with -1 (the write once failed to broadcast m into 2m)."""
+    copy = tmp_path / "s.zarr"
+    shutil.copytree(made[0], copy)
+    store = ScoreStore(copy)
+    stored = evaluation_store.read(store)
+    box = stored.order["box"]
+    wide = np.concatenate([box, box], axis=1)  # stands for a trace with resumptions
+    stored.order["contextual_capped"] = wide
+    stored.selectors = [*stored.selectors, "contextual_capped"]
+    for table in (stored.first_feasible_time, stored.best_score, stored.first_feasible_step):
+        table["contextual_capped"] = table["box"]
+    evaluation_store.write(store, stored, score_units=store.score_units())
+    back = evaluation_store.read(ScoreStore(copy, read_only=True))
+    assert back.order["contextual_capped"].tolist() == wide.tolist()
+    assert back.order["box"][:, :box.shape[1]].tolist() == box.tolist()
+    assert (back.order["box"][:, box.shape[1]:] == -1).all()

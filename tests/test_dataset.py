@@ -197,11 +197,13 @@ def test_a_layout_3_store_migrates_keeping_every_entry_and_its_evaluation(tmp_pa
     for (name, what), values in old.items():
         new = evaluation[what].sel(selector=name).values
         assert new.tobytes() == values.tobytes(), (name, what)
-    # its intervals were percentile ones: the next evaluate computes them as this version does
-    res = run_layout_3(store, "stage=evaluate", "evaluate.k=4")
+    # its intervals were percentile ones: the next evaluate with the same settings (the
+    # selectors it was run with, not today's defaults) computes them as this version does
+    same = (f"evaluate.selectors=[{','.join(info['settings']['selectors'])}]", "evaluate.k=4")
+    res = run_layout_3(store, "stage=evaluate", *same)
     assert res.returncode == 0, res.stderr + res.stdout
     assert "its intervals are percentile bootstrap" in res.stdout
-    res = run_layout_3(store, "stage=evaluate", "evaluate.k=4")
+    res = run_layout_3(store, "stage=evaluate", *same)
     assert "evaluate: already complete" in res.stdout
     assert list(xr.open_zarr(store, group="constraints").feature.values) == ["via_x", "via_y"]
     assert isinstance(with_names(xr.open_zarr(store, group="scores")).status.to_series(),

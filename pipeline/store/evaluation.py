@@ -93,8 +93,9 @@ def write(store: ScoreStore, evaluation: StoredEvaluation, score_units: str) -> 
             shape = tuple(lengths[d] for d in spec.dims[1:])
             data = np.full((len(names), *shape), spec.fill, dtype=spec.dtype)
             for s, selector in enumerate(names):
-                if selector in values:
-                    data[s] = values[selector]
+                if selector in values:  # traces shorter than the longest: padded with fill
+                    found = np.asarray(values[selector])
+                    data[(s, *(slice(0, w) for w in found.shape))] = found
             chunks = (1, rows, *shape[1:])
         else:
             data, chunks = values, (rows,)
