@@ -65,6 +65,9 @@ class LoocvResult:
     ``first_feasible_*`` and ``best_score`` count those shares (paused tries included).
     ``settings[name]``: for selectors that tune settings (``contextual``...), {setting:
     (n,) value used for each held-out row}, chosen without that row (docs/box_core.md).
+    ``tuning_seconds[name]``: their tuning's wall time in all.  It is training, like
+    fitting BOX's prior, and not in ``overhead``: a live selector tunes once on the
+    training rows before its first instance (pipeline/solve.py), not per instance.
     """
 
     selectors: tuple[str, ...]
@@ -82,6 +85,7 @@ class LoocvResult:
     allowance: dict[str, np.ndarray] = field(default_factory=dict)
     try_time: dict[str, np.ndarray] = field(default_factory=dict)
     settings: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    tuning_seconds: dict[str, float] = field(default_factory=dict)
 
     @property
     def n(self) -> int:
@@ -335,14 +339,14 @@ class _Setup:
                        train_features=None if self.X is None else self.X[train],
                        query=None if self.X is None else self.X[test])
         run = _run_fast if fast else _run
-        traces, settings = {}, {}
+        traces, settings, tuning_seconds = {}, {}, {}
         groups, memo = None, {}  # memo: what selectors tuned alike share, per group
         for name, cls in self.classes.items():
             params = dict(self.params.get(name, {}))
             if issubclass(cls, Contextual):
                 groups = tuning(test) if groups is None else groups
-                traces[name], settings[name] = self._tuned(cls, params, folds, groups,
-                                                           measure, run, memo)
+                traces[name], settings[name], tuning_seconds[name] = self._tuned(
+                    cls, params, folds, groups, measure, run, memo)
             else:
                 order, overhead = run(cls, params, folds, measure)
                 traces[name] = _uncapped(order, overhead, T, feas)
@@ -361,6 +365,7 @@ class _Setup:
             optimal_score=(D if hidden is None else np.where(hidden, -np.inf, D)).max(axis=1),
             time_grid=grid,
             settings=settings,
+            tuning_seconds=tuning_seconds,
         )
         for name, tr in traces.items():
             order = tr.order
@@ -386,9 +391,10 @@ class _Setup:
 
     def _tuned(self, cls, params, folds, groups, measure, run, memo):
         """A :class:`Contextual` selector over the held-out rows, each group with the
-        settings tuned on its training rows: (trace, {setting: (B,) values})."""
+        settings tuned on its training rows: (trace, {setting: (B,) values}, the tuning's
+        seconds, which the trace's overhead leaves out)."""
         B = folds.Dn.shape[0]
-        parts, chosen = [], {}
+        parts, chosen, tuning_seconds = [], {}, 0.0
         for g, (positions, rows) in enumerate(groups):
             clock = time.perf_counter()
             kwargs = tune(cls, self.Dn[rows], self.feas[rows], self.T[rows],
@@ -396,15 +402,13 @@ class _Setup:
                           None if self.X is None else self.X[rows], params, folds.seed,
                           None if self.forbidden is None else self.forbidden[rows],
                           memo=memo.setdefault(g, {}))
-            spent = time.perf_counter() - clock
+            tuning_seconds += time.perf_counter() - clock
             part = folds.restrict(positions)
             # tries are capped only with features, stored checks and a finite cap
             if math.isfinite(kwargs.get("cap", math.inf)) and self.X is not None:
                 trace = _run_tries(cls, kwargs, part, measure)
             else:
                 trace = _uncapped(*run(cls, kwargs, part, measure), part.T, part.feas)
-            if measure and trace.overhead.size:
-                trace.overhead[:, 0] += spent / positions.size
             parts.append((positions, trace))
             for key, value in kwargs.items():  # numbers, and the features' mask
                 value = np.asarray(value, dtype=np.float64)
@@ -418,7 +422,7 @@ class _Setup:
             w = tr.order.shape[1]
             for key in ("order", "allowance", "cost", "outcome", "overhead"):
                 getattr(out, key)[positions, :w] = getattr(tr, key)
-        return out, chosen
+        return out, chosen, tuning_seconds
 
 
 def _uncapped(order, overhead, T, feas) -> TryTrace:

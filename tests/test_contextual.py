@@ -192,6 +192,26 @@ def test_features_that_predict_feasibility_make_it_faster_than_box():
     assert np.nanmean(res.first_feasible_time["contextual"]) < box
 
 
+def test_tuning_is_training_time_not_each_instance_s_overhead():
+    """Nested tuning stands in for the one tuning a live selector does on its training
+    rows before any instance (as BOX's prior fit); it once went into every held-out row's
+    first step and made CONTEXTUAL look slower than BOX on the main job's store."""
+    S, F, T, C, X = problem(120, 10, 2, 3)
+    res = box_core.loocv(S, times=T, feasible=F, selectors=("box", "contextual"),
+                         instance_features=X)
+    tuning = res.tuning_seconds["contextual"]
+    assert tuning > 0 and set(res.tuning_seconds) == {"contextual"}
+    # a nested leave-one-out over every group's training rows against one pass over the
+    # held-out rows: tens of times more work, so the difference is no matter of noise
+    assert res.overhead["contextual"][:, 0].sum() < tuning / 4
+    steps = res.first_feasible_step["contextual"]
+    found = steps >= 0
+    spent = np.array([res.overhead["contextual"][i, :steps[i] + 1].sum()
+                      for i in np.flatnonzero(found)])
+    extra = res.first_feasible_time["contextual"] - res.first_feasible_planning_time["contextual"]
+    assert extra[found] == pytest.approx(spent)
+
+
 def test_capped_costs_on_a_hand_built_example():
     # three entries of one instance: a plan after 100 checks, a failure after 40, and one
     # that exhausts a budget of 1000 checks; each took 1 ms per 100 checks, cap 50
