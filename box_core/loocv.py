@@ -113,6 +113,7 @@ def loocv(
     forbidden=None,
     instance_features=None,
     checks=None,
+    until_feasible: bool = False,
 ) -> LoocvResult:
     """Leave-one-out evaluation of ``selectors`` on a score matrix (n x m, higher is better).
 
@@ -133,16 +134,22 @@ def loocv(
 
     Selectors see the scores through :func:`~box_core.selectors.standardise`, so the result
     is the same for scores in any positive unit.
+
+    ``until_feasible=True`` is for callers that need only the time to the first feasible
+    plan (C's tuning, learning curves): a row stops at its first feasible try, so ``order``
+    ends there (-1 after it) and ``best_score`` counts the tries up to it; every
+    ``first_feasible_*`` value is the one a full run gives, bit for bit.
     """
     return _loocv(scores, times=times, feasible=feasible, selectors=selectors, k=k,
                   features=features, seed=seed, params=params, failure_rule=failure_rule,
                   time_grid=time_grid, measure_overhead=measure_overhead, forbidden=forbidden,
-                  instance_features=instance_features, checks=checks)
+                  instance_features=instance_features, checks=checks,
+                  until_feasible=until_feasible)
 
 
 def _loocv(scores, *, times, feasible, selectors, k, features, seed, params, failure_rule,
            time_grid, measure_overhead, forbidden, rows=None, fast: bool = True,
-           instance_features=None, checks=None):
+           instance_features=None, checks=None, until_feasible: bool = False):
     """:func:`loocv`; ``rows``: hold out only these rows (each still with the prior of
     all the others; the result's rows are these); ``fast=False``: the unoptimised path
     (every instance through every step, nothing skipped: the same result, slower)."""
@@ -163,7 +170,8 @@ def _loocv(scores, *, times, feasible, selectors, k, features, seed, params, fai
                 for g in np.unique(groups[test])]
 
     return setup.evaluate(prior.folds, outcomes, rows, seed, time_grid, measure_overhead,
-                          fast=fast, train=np.arange(n), tuning=tuning)
+                          fast=fast, train=np.arange(n), tuning=tuning,
+                          until_feasible=until_feasible)
 
 
 def holdout(
@@ -184,6 +192,7 @@ def holdout(
     forbidden=None,
     instance_features=None,
     checks=None,
+    until_feasible: bool = False,
 ) -> LoocvResult:
     """Like :func:`loocv`, but every row of ``test`` is run with the one prior fitted on the
     rows ``train`` (learning curves, nested cross-validation).  The result's rows are the
@@ -191,18 +200,19 @@ def holdout(
     ``(seed, i)``, and the failure value comes from the whole matrix, as in :func:`loocv`;
     ``forbidden`` (n x m) as in :func:`loocv` (only the ``test`` rows' masks matter);
     ``instance_features`` and ``checks`` as in :func:`loocv` (settings the selector tunes
-    are tuned on the ``train`` rows).
+    are tuned on the ``train`` rows); ``until_feasible`` as in :func:`loocv`.
     """
     return _holdout(scores, train, test, times=times, feasible=feasible, selectors=selectors,
                     k=k, features=features, seed=seed, params=params,
                     failure_rule=failure_rule, time_grid=time_grid,
                     measure_overhead=measure_overhead, forbidden=forbidden,
-                    instance_features=instance_features, checks=checks)
+                    instance_features=instance_features, checks=checks,
+                    until_feasible=until_feasible)
 
 
 def _holdout(scores, train, test, *, times, feasible, selectors, k, features, seed, params,
              failure_rule, time_grid, measure_overhead, forbidden, fast: bool = True,
-             instance_features=None, checks=None):
+             instance_features=None, checks=None, until_feasible: bool = False):
     """:func:`holdout`; ``fast=False`` as in :func:`_loocv`."""
     setup = _Setup.check(scores, times, feasible, selectors, k, features, params,
                          failure_rule, min_rows=2, forbidden=forbidden,
@@ -227,7 +237,8 @@ def _holdout(scores, train, test, *, times, feasible, selectors, k, features, se
         return [(np.arange(test.size), train)]
 
     return setup.evaluate(lambda rows: prior.batch(rows.size), outcomes, test, seed,
-                          time_grid, measure_overhead, fast=fast, train=train, tuning=tuning)
+                          time_grid, measure_overhead, fast=fast, train=train, tuning=tuning,
+                          until_feasible=until_feasible)
 
 
 def _row_indices(rows, n: int, name: str) -> np.ndarray:
@@ -324,7 +335,8 @@ class _Setup:
                    X=X, checks=C)
 
     def evaluate(self, fold_priors, fold_outcomes, test, seed, time_grid,
-                 measure, fast: bool = True, train=None, tuning=None) -> LoocvResult:
+                 measure, fast: bool = True, train=None, tuning=None,
+                 until_feasible: bool = False) -> LoocvResult:
         """Run every selector on the ``test`` rows; ``fold_priors(rows)`` and
         ``fold_outcomes(rows)`` give their priors and training outcomes, ``train`` the
         rows the folds train on (their instance features), ``tuning(test)`` the groups
@@ -337,7 +349,8 @@ class _Setup:
                        test, seed, k, fast,
                        checks=None if self.checks is None else self.checks[test],
                        train_features=None if self.X is None else self.X[train],
-                       query=None if self.X is None else self.X[test])
+                       query=None if self.X is None else self.X[test],
+                       until_feasible=until_feasible)
         run = _run_fast if fast else _run
         traces, settings, tuning_seconds = {}, {}, {}
         groups, memo = None, {}  # memo: what selectors tuned alike share, per group
@@ -350,6 +363,9 @@ class _Setup:
             else:
                 order, overhead = run(cls, params, folds, measure)
                 traces[name] = _uncapped(order, overhead, T, feas)
+        if until_feasible:
+            for trace in traces.values():
+                _end_at_first_feasible(trace)
         if hidden is not None:
             feas = feas & ~hidden
         rows = np.arange(test.size)[:, None]
@@ -425,6 +441,19 @@ class _Setup:
         return out, chosen, tuning_seconds
 
 
+def _end_at_first_feasible(trace: TryTrace) -> None:
+    """Clear what ``trace`` holds after each row's first feasible try (loocv's
+    ``until_feasible``: the fast path may have stopped there, the others went on)."""
+    hit = trace.outcome == FEASIBLE
+    step = np.where(hit.any(axis=1), hit.argmax(axis=1), trace.order.shape[1])
+    after = np.arange(trace.order.shape[1])[None, :] > step[:, None]
+    trace.order[after] = -1
+    trace.allowance[after] = 0.0
+    trace.cost[after] = 0.0
+    trace.overhead[after] = 0.0
+    trace.outcome[after] = -1
+
+
 def _uncapped(order, overhead, T, feas) -> TryTrace:
     """The trace of uncapped tries in ``order``: each costs its time and ends."""
     rows = np.arange(order.shape[0])[:, None]
@@ -467,6 +496,8 @@ class _Folds:
     checks: np.ndarray | None = None  # (B, m) of the held-out rows
     train_features: np.ndarray | None = None  # instance features of the training rows
     query: np.ndarray | None = None  # instance features of the held-out rows
+    #: rows may stop at their first feasible try (loocv's ``until_feasible``)
+    until_feasible: bool = False
 
     def restrict(self, positions: np.ndarray) -> _Folds:
         """These folds for the held-out rows at ``positions`` only."""
@@ -534,7 +565,9 @@ def _run_fast(cls: type[Policy], kwargs, folds: _Folds, measure):
 
     An instance stops being updated once the policy says it is settled (no observation
     can change its later proposals: BOX once every untried column is constant, the fixed
-    orders from the start); its remaining proposals are then listed at once.  Settled
+    orders from the start); its remaining proposals are then listed at once.  With
+    ``until_feasible`` an instance also stops at its first feasible try (nothing after it
+    is listed).  Settled
     instances leave the batch when they are half of it.  A batch holds as many instances
     as the policy's buffers allow within :data:`BATCH_BYTES_PER_ENTRY` (BOX keeps a row of
     W per observed column that is not constant); policies that never settle run in their
@@ -549,7 +582,8 @@ def _run_fast(cls: type[Policy], kwargs, folds: _Folds, measure):
         per = cls.bytes_per_instance(m, m, k)
         if per:
             live = m - int(folds.priors(folds.test).inert().sum())
-            if live == m:  # no constant column: nothing settles before the last try
+            if live == m and not folds.until_feasible:
+                # no constant column: nothing settles before the last try
                 return _run(cls, kwargs, folds, measure)
             per = cls.bytes_per_instance(m, live, k)
         budget = max(MIN_BATCH_BYTES, BATCH_BYTES_PER_ENTRY * n * m)
@@ -563,26 +597,32 @@ def _run_fast(cls: type[Policy], kwargs, folds: _Folds, measure):
         overhead[rows, 0] = (time.perf_counter() - clock) / rows.size
         here = rows  # the test row of each instance of the batch
         stepping = np.ones(rows.size, dtype=bool)  # not settled yet
+        found = np.zeros(rows.size, dtype=bool)  # until_feasible: a plan found, nothing more
         for t in range(k):
             clock = time.perf_counter()
-            done = stepping & policy.settled() if settles else None
-            if done is not None and done.any():
-                at = np.flatnonzero(done)
-                order[here[at], t:] = policy.remaining(at, k - t)
-                stepping[at] = False
-                overhead[here[at], t:] += (time.perf_counter() - clock) / (at.size * (k - t))
-                if not stepping.any():
-                    break
-                clock = time.perf_counter()
-                if 2 * stepping.sum() <= stepping.size:  # the settled ones leave
-                    kept = np.flatnonzero(stepping)
-                    policy.keep(kept)
-                    here, stepping = here[kept], stepping[kept]
+            if settles:
+                ended = stepping & found
+                listed = stepping & ~ended & policy.settled()
+                if listed.any():
+                    at = np.flatnonzero(listed)
+                    order[here[at], t:] = policy.remaining(at, k - t)
+                    overhead[here[at], t:] += (time.perf_counter() - clock) / (at.size * (k - t))
+                if listed.any() or ended.any():
+                    stepping &= ~(listed | ended)
+                    if not stepping.any():
+                        break
+                    clock = time.perf_counter()
+                    if 2 * stepping.sum() <= stepping.size:  # the settled ones leave
+                        kept = np.flatnonzero(stepping)
+                        policy.keep(kept)
+                        here, stepping, found = here[kept], stepping[kept], found[kept]
             cols = policy.propose()
             policy.update(cols, folds.Dn[here, cols])
             live_rows = here[stepping]
             overhead[live_rows, t] += (time.perf_counter() - clock) / live_rows.size
             order[live_rows, t] = cols[stepping]
+            if folds.until_feasible:
+                found |= folds.feas[here, cols]
         del policy  # its buffers go before the next batch's are made
     if not measure:
         overhead[:] = 0.0

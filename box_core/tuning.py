@@ -37,8 +37,10 @@ class CurvePoint:
 
 
 def _matrix_args(times, feasible, features, failure_rule, forbidden=None):
+    """Everything here reads times to the first feasible plan only: rows stop there."""
     return {"times": times, "feasible": feasible, "features": features,
-            "failure_rule": failure_rule, "measure_overhead": False, "forbidden": forbidden}
+            "failure_rule": failure_rule, "measure_overhead": False, "forbidden": forbidden,
+            "until_feasible": True}
 
 
 def _take(a, rows):

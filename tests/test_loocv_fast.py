@@ -230,3 +230,42 @@ def test_argmax_sequence_is_argmax_untried_called_once_per_step(seed, m, levels,
         j = argmax_untried(values, mask, scales)
         np.testing.assert_array_equal(got[:, t], j)
         mask[np.arange(B), j] = True
+
+
+@pytest.mark.parametrize("hide", [False, True])
+def test_until_feasible_gives_every_first_feasible_value_of_the_full_run(hide):
+    """Rows that stop at their first plan (what C's tuning and the learning curves ask
+    for) leave every first-feasible value as the full run has it, bit for bit, and their
+    orders are the full run's up to that try."""
+    data = score_matrix(80, 40, types=4, useful=10, per_type=2, seed=11)
+    feasible = data.feasible.copy()
+    feasible[::9] = False  # rows with no plan run to the end
+    forbidden = np.random.default_rng(3).random(feasible.shape) < 0.05 if hide else None
+    kw = dict(times=data.times, feasible=feasible, features=data.features, seed=2,
+              selectors=ALL, measure_overhead=False, forbidden=forbidden)
+    train, test = np.arange(0, 80, 4), np.setdiff1d(np.arange(80), np.arange(0, 80, 4))
+    for run in (lambda **a: loocv(data.scores, **a),
+                lambda **a: holdout(data.scores, train, test, **a)):
+        full, short = run(**kw), run(**kw, until_feasible=True)
+        for name in ALL:
+            for field in ("first_feasible_step", "first_feasible_time",
+                          "first_feasible_planning_time"):
+                np.testing.assert_array_equal(getattr(short, field)[name],
+                                              getattr(full, field)[name], err_msg=(name, field))
+            step = full.first_feasible_step[name]
+            for i, s in enumerate(step):
+                upto = s + 1 if s >= 0 else full.k
+                assert short.order[name][i, :upto].tolist() == full.order[name][i, :upto].tolist()
+                assert (short.order[name][i, upto:] == -1).all()
+        assert (short.order["box"] == -1).sum() > 0.5 * short.order["box"].size  # stopped early
+
+
+def test_until_feasible_without_constant_columns_stops_rows_too():
+    D = well_conditioned(30, 9, seed=3)  # no column settles: the fast loop still drops rows
+    kw = dict(features=features_for(9), seed=5, selectors=ALL, measure_overhead=False)
+    full, short = loocv(D, **kw), loocv(D, **kw, until_feasible=True)
+    for name in ALL:
+        np.testing.assert_array_equal(short.first_feasible_time[name],
+                                      full.first_feasible_time[name], err_msg=name)
+        np.testing.assert_array_equal(short.first_feasible_step[name],
+                                      full.first_feasible_step[name], err_msg=name)

@@ -114,7 +114,8 @@ def _curve_settings(res: StoreResults, settings: dict) -> dict:
 def _learning_curves_beside(results, settings: dict):
     """Futures of the stores' learning curves.  With a second core they are computed in a
     second process while this one draws the figures and tunes C (the two are the report's
-    longest computations, leave-one-out runs of about 45 s each at 1000 × 162); on one core
+    longest computations, about 15 s each at 1000 × 162, rows stopping at their first
+    plan); on one core
     they are computed here first.  The numbers are the same either way: both are seeded
     functions of the matrix alone."""
     jobs = [(res.scores, _curve_settings(res, settings)) for res in results]
