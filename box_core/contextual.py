@@ -434,26 +434,28 @@ def tune(cls, Dn, F, T, checks, X, params: dict, seed: int = 0, forbidden=None,
         kwargs["k"] = int(fixed["k"])
     capped = "cap_quantile" in cls.defaults
     if ("k" not in fixed and key not in memo) or (capped and "cap_quantile" not in fixed):
-        runner = _InnerRuns(cls, Dn, F, T, checks, X, eligible, forbidden, seed)
+        if ("runs", key) not in memo:  # the same rows and features: shared by both classes
+            memo["runs", key] = _InnerRuns(Dn, F, T, checks, X, eligible, forbidden, seed)
+        runner = memo["runs", key]
+    known = {}  # {setting: mean time} already measured with these kwargs
     if "k" not in fixed:
         if key not in memo:
             grid = [k for k in K_GRID if k < n - 1] or [max(1, n - 2)]
-            memo[key] = runner.best("k", grid, {**kwargs, "cap": math.inf}, F)
-        kwargs["k"] = memo[key]
+            memo[key] = runner.best(cls, "k", grid, {**kwargs, "cap": math.inf})
+        kwargs["k"], known[math.inf] = memo[key]
     if capped:
         if "cap_quantile" in fixed:
             kwargs["cap"] = cap_of(fixed["cap_quantile"], F, checks)
-        else:
-            q = runner.best("cap", [cap_of(q, F, checks) for q in CAP_GRID], kwargs, F)
-            kwargs["cap"] = q
+        else:  # no cap is the uncapped run the k was chosen by: its time is known
+            grid = [cap_of(q, F, checks) for q in CAP_GRID]
+            kwargs["cap"] = runner.best(cls, "cap", grid, kwargs, known)[0]
     return kwargs
 
 
 class _InnerRuns:
     """Leave-one-out runs of a policy on some training rows, by setting."""
 
-    def __init__(self, cls, Dn, F, T, checks, X, rows, forbidden, seed):
-        self.cls = cls
+    def __init__(self, Dn, F, T, checks, X, rows, forbidden, seed):
         prior = Prior.fit(Dn)
         self.truth = (Dn[rows], F[rows], T[rows], None if checks is None else checks[rows])
         outcomes = TrainingOutcomes.of(Dn, F, T, rows, checks)
@@ -464,17 +466,23 @@ class _InnerRuns:
         # the neighbours of the largest k, shared by every setting
         self.ranks = neighbour_ranks(X, X[rows], rows, max(K_GRID))
 
-    def mean_time(self, kwargs) -> float:
+    def mean_time(self, cls, kwargs) -> float:
         kwargs = {key: v for key, v in kwargs.items() if key != "feature_mask"}  # X: selected
-        policy = self.cls(self.ctx, ranks=self.ranks, **kwargs)
+        policy = cls(self.ctx, ranks=self.ranks, **kwargs)
         D, F, T, C = self.truth
         m = F.shape[1]
         trace = simulate(policy, D, F, T, C, m, until_feasible=True)
         return float(trace.cost.sum(axis=1).mean()) if trace.cost.size else 0.0
 
-    def best(self, name, grid, kwargs, F):
-        times = [self.mean_time({**kwargs, name: value}) for value in grid]
-        return grid[int(np.argmin(times))]
+    def best(self, cls, name, grid, kwargs, known=None) -> tuple:
+        """(the value of ``name`` in ``grid`` with the least mean time (ties: the first),
+        that time); ``known``: {value: mean time} measured before (the policy is a
+        deterministic function of the setting, so it would measure the same)."""
+        known = known or {}
+        times = [known[value] if value in known else
+                 self.mean_time(cls, {**kwargs, name: value}) for value in grid]
+        at = int(np.argmin(times))
+        return grid[at], times[at]
 
 
 def select_features(F: np.ndarray, X: np.ndarray, seed: int = 0) -> np.ndarray:
