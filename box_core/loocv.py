@@ -11,10 +11,14 @@ All held-out rows of a batch advance in lockstep through the same policy code th
 
 from __future__ import annotations
 
+import contextlib
 import math
+import multiprocessing
 import time
 from collections.abc import Iterable, Mapping
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 
@@ -114,6 +118,7 @@ def loocv(
     instance_features=None,
     checks=None,
     until_feasible: bool = False,
+    workers: int = 1,
 ) -> LoocvResult:
     """Leave-one-out evaluation of ``selectors`` on a score matrix (n x m, higher is better).
 
@@ -139,20 +144,33 @@ def loocv(
     plan (C's tuning, learning curves): a row stops at its first feasible try, so ``order``
     ends there (-1 after it) and ``best_score`` counts the tries up to it; every
     ``first_feasible_*`` value is the one a full run gives, bit for bit.
+
+    ``workers=2`` (or more) runs the selectors that tune their settings (``contextual``,
+    ``contextual_capped``: nested leave-one-out, the costly part) in a second process
+    beside the others; the result is the same (each process measures its own selectors'
+    overhead).
     """
     return _loocv(scores, times=times, feasible=feasible, selectors=selectors, k=k,
                   features=features, seed=seed, params=params, failure_rule=failure_rule,
                   time_grid=time_grid, measure_overhead=measure_overhead, forbidden=forbidden,
                   instance_features=instance_features, checks=checks,
-                  until_feasible=until_feasible)
+                  until_feasible=until_feasible, workers=workers)
 
 
 def _loocv(scores, *, times, feasible, selectors, k, features, seed, params, failure_rule,
            time_grid, measure_overhead, forbidden, rows=None, fast: bool = True,
-           instance_features=None, checks=None, until_feasible: bool = False):
+           instance_features=None, checks=None, until_feasible: bool = False, workers=1,
+           only=None):
     """:func:`loocv`; ``rows``: hold out only these rows (each still with the prior of
     all the others; the result's rows are these); ``fast=False``: the unoptimised path
-    (every instance through every step, nothing skipped: the same result, slower)."""
+    (every instance through every step, nothing skipped: the same result, slower);
+    ``only``: just the traces of these selectors (what a second process returns)."""
+    again = partial(_loocv, scores, times=times, feasible=feasible, selectors=selectors,
+                    k=k, features=features, seed=seed, params=params,
+                    failure_rule=failure_rule, time_grid=time_grid,
+                    measure_overhead=measure_overhead, forbidden=forbidden, rows=rows,
+                    fast=fast, instance_features=instance_features, checks=checks,
+                    until_feasible=until_feasible)
     setup = _Setup.check(scores, times, feasible, selectors, k, features, params,
                          failure_rule, min_rows=3, forbidden=forbidden,
                          instance_features=instance_features, checks=checks)
@@ -171,7 +189,8 @@ def _loocv(scores, *, times, feasible, selectors, k, features, seed, params, fai
 
     return setup.evaluate(prior.folds, outcomes, rows, seed, time_grid, measure_overhead,
                           fast=fast, train=np.arange(n), tuning=tuning,
-                          until_feasible=until_feasible)
+                          until_feasible=until_feasible, workers=workers, only=only,
+                          again=again)
 
 
 def holdout(
@@ -193,6 +212,7 @@ def holdout(
     instance_features=None,
     checks=None,
     until_feasible: bool = False,
+    workers: int = 1,
 ) -> LoocvResult:
     """Like :func:`loocv`, but every row of ``test`` is run with the one prior fitted on the
     rows ``train`` (learning curves, nested cross-validation).  The result's rows are the
@@ -200,20 +220,28 @@ def holdout(
     ``(seed, i)``, and the failure value comes from the whole matrix, as in :func:`loocv`;
     ``forbidden`` (n x m) as in :func:`loocv` (only the ``test`` rows' masks matter);
     ``instance_features`` and ``checks`` as in :func:`loocv` (settings the selector tunes
-    are tuned on the ``train`` rows); ``until_feasible`` as in :func:`loocv`.
+    are tuned on the ``train`` rows); ``until_feasible`` and ``workers`` as in
+    :func:`loocv`.
     """
     return _holdout(scores, train, test, times=times, feasible=feasible, selectors=selectors,
                     k=k, features=features, seed=seed, params=params,
                     failure_rule=failure_rule, time_grid=time_grid,
                     measure_overhead=measure_overhead, forbidden=forbidden,
                     instance_features=instance_features, checks=checks,
-                    until_feasible=until_feasible)
+                    until_feasible=until_feasible, workers=workers)
 
 
 def _holdout(scores, train, test, *, times, feasible, selectors, k, features, seed, params,
              failure_rule, time_grid, measure_overhead, forbidden, fast: bool = True,
-             instance_features=None, checks=None, until_feasible: bool = False):
-    """:func:`holdout`; ``fast=False`` as in :func:`_loocv`."""
+             instance_features=None, checks=None, until_feasible: bool = False, workers=1,
+             only=None):
+    """:func:`holdout`; ``fast=False`` and ``only`` as in :func:`_loocv`."""
+    again = partial(_holdout, scores, train, test, times=times, feasible=feasible,
+                    selectors=selectors, k=k, features=features, seed=seed, params=params,
+                    failure_rule=failure_rule, time_grid=time_grid,
+                    measure_overhead=measure_overhead, forbidden=forbidden, fast=fast,
+                    instance_features=instance_features, checks=checks,
+                    until_feasible=until_feasible)
     setup = _Setup.check(scores, times, feasible, selectors, k, features, params,
                          failure_rule, min_rows=2, forbidden=forbidden,
                          instance_features=instance_features, checks=checks)
@@ -238,7 +266,8 @@ def _holdout(scores, train, test, *, times, feasible, selectors, k, features, se
 
     return setup.evaluate(lambda rows: prior.batch(rows.size), outcomes, test, seed,
                           time_grid, measure_overhead, fast=fast, train=train, tuning=tuning,
-                          until_feasible=until_feasible)
+                          until_feasible=until_feasible, workers=workers, only=only,
+                          again=again)
 
 
 def _row_indices(rows, n: int, name: str) -> np.ndarray:
@@ -336,13 +365,17 @@ class _Setup:
 
     def evaluate(self, fold_priors, fold_outcomes, test, seed, time_grid,
                  measure, fast: bool = True, train=None, tuning=None,
-                 until_feasible: bool = False) -> LoocvResult:
+                 until_feasible: bool = False, workers: int = 1, only=None,
+                 again=None) -> LoocvResult:
         """Run every selector on the ``test`` rows; ``fold_priors(rows)`` and
         ``fold_outcomes(rows)`` give their priors and training outcomes, ``train`` the
         rows the folds train on (their instance features), ``tuning(test)`` the groups
         [(positions in ``test``, the rows to tune their settings on)].  ``fast=False``
         runs every instance through every step with no arithmetic skipped (the same
-        result, up to the measured overhead; what the tests compare the fast path with)."""
+        result, up to the measured overhead; what the tests compare the fast path with).
+        ``only``: return just (traces, settings, tuning seconds) of these selectors;
+        ``workers`` >= 2: the tuned selectors' traces come from ``again(only=...)`` in a
+        second process."""
         D, T, feas, k = self.D[test], self.T[test], self.feas[test], self.k
         hidden = None if self.forbidden is None else self.forbidden[test]
         folds = _Folds(fold_priors, fold_outcomes, self.Dn[test], T, feas, hidden, self.theta,
@@ -351,18 +384,20 @@ class _Setup:
                        train_features=None if self.X is None else self.X[train],
                        query=None if self.X is None else self.X[test],
                        until_feasible=until_feasible)
-        run = _run_fast if fast else _run
-        traces, settings, tuning_seconds = {}, {}, {}
-        groups, memo = None, {}  # memo: what selectors tuned alike share, per group
-        for name, cls in self.classes.items():
-            params = dict(self.params.get(name, {}))
-            if issubclass(cls, Contextual):
-                groups = tuning(test) if groups is None else groups
-                traces[name], settings[name], tuning_seconds[name] = self._tuned(
-                    cls, params, folds, groups, measure, run, memo)
-            else:
-                order, overhead = run(cls, params, folds, measure)
-                traces[name] = _uncapped(order, overhead, T, feas)
+        names = self.names if only is None else tuple(only)
+        tuned = [n for n in names if issubclass(self.classes[n], Contextual)]
+        beside = tuned if workers >= 2 and again is not None and 0 < len(tuned) < len(
+            names) else []
+        with _second_process(again, beside) as theirs:
+            traces, settings, tuning_seconds = self._traces(
+                [n for n in names if n not in beside], folds, tuning, test, measure, fast)
+            if theirs is not None:
+                for part, found in zip((traces, settings, tuning_seconds), theirs.result(),
+                                       strict=True):
+                    part.update(found)
+        traces = {n: traces[n] for n in names}  # the order selectors were given in
+        if only is not None:
+            return traces, settings, tuning_seconds
         if until_feasible:
             for trace in traces.values():
                 _end_at_first_feasible(trace)
@@ -405,6 +440,23 @@ class _Setup:
             result.best_score[name] = _best_by_time(totals[name], scores, grid, self.d)
         return result
 
+    def _traces(self, names, folds, tuning, test, measure, fast):
+        """(traces, settings, tuning seconds) of the selectors ``names``."""
+        run = _run_fast if fast else _run
+        traces, settings, tuning_seconds = {}, {}, {}
+        groups, memo = None, {}  # memo: what selectors tuned alike share, per group
+        for name in names:
+            cls = self.classes[name]
+            params = dict(self.params.get(name, {}))
+            if issubclass(cls, Contextual):
+                groups = tuning(test) if groups is None else groups
+                traces[name], settings[name], tuning_seconds[name] = self._tuned(
+                    cls, params, folds, groups, measure, run, memo)
+            else:
+                order, overhead = run(cls, params, folds, measure)
+                traces[name] = _uncapped(order, overhead, folds.T, folds.feas)
+        return traces, settings, tuning_seconds
+
     def _tuned(self, cls, params, folds, groups, measure, run, memo):
         """A :class:`Contextual` selector over the held-out rows, each group with the
         settings tuned on its training rows: (trace, {setting: (B,) values}, the tuning's
@@ -439,6 +491,18 @@ class _Setup:
             for key in ("order", "allowance", "cost", "outcome", "overhead"):
                 getattr(out, key)[positions, :w] = getattr(tr, key)
         return out, chosen, tuning_seconds
+
+
+@contextlib.contextmanager
+def _second_process(again, names):
+    """A future of ``again(only=names)`` computed in a second (spawned) process, or None
+    when ``names`` is empty."""
+    if not names:
+        yield None
+        return
+    with ProcessPoolExecutor(max_workers=1,
+                             mp_context=multiprocessing.get_context("spawn")) as pool:
+        yield pool.submit(again, only=tuple(names))
 
 
 def _end_at_first_feasible(trace: TryTrace) -> None:

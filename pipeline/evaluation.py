@@ -60,6 +60,8 @@ def selector_params(names, settings) -> dict:
 
 
 def evaluate(ctx: StageContext) -> None:
+    from pipeline.cluster import available_cores  # dask: only where a stage runs
+
     store = ctx.store
     settings = ctx.config["evaluate"]
     info = store.stage_info("evaluate")
@@ -81,7 +83,8 @@ def evaluate(ctx: StageContext) -> None:
                                 params=selector_params(names, settings),
                                 failure_rule=settings["failure_rule"], forbidden=hide,
                                 instance_features=instance_features(store),
-                                checks=store.result(SCORES, CHECKS))
+                                checks=store.result(SCORES, CHECKS),
+                                workers=available_cores())  # tuned selectors beside
     except ValueError as exc:
         raise ValueError(f"evaluate: {exc}") from None
     others, curves = {}, {}

@@ -327,3 +327,24 @@ def test_a_skipped_observation_leaves_the_posterior_as_it_was(constant):
             alone.observe(cols[b, t:t + 1], D[[b], cols[b, t:t + 1]])
         np.testing.assert_allclose(batch.mean[b], alone.mean[0], atol=1e-9)
         np.testing.assert_allclose(batch.var[b], alone.var[0], atol=1e-9)
+
+
+def test_tuned_selectors_in_a_second_process_give_the_same_result():
+    S, F, T, C, X = problem(60, 8, 2, 5)
+    kw = dict(times=T, feasible=F, instance_features=X, checks=C, measure_overhead=False,
+              selectors=("box", "contextual", "static", "contextual_capped"))
+    one, two = box_core.loocv(S, **kw), box_core.loocv(S, **kw, workers=2)
+    assert two.selectors == one.selectors and list(two.order) == list(one.order)
+    np.testing.assert_array_equal(two.time_grid, one.time_grid)
+    for name in one.selectors:
+        for field in ("order", "first_feasible_time", "best_score"):
+            np.testing.assert_array_equal(getattr(two, field)[name], getattr(one, field)[name])
+    for name, chosen in one.settings.items():
+        for key, values in chosen.items():
+            np.testing.assert_array_equal(two.settings[name][key], values)
+    assert set(two.tuning_seconds) == {"contextual", "contextual_capped"}
+    train, test = np.arange(0, 60, 2), np.arange(1, 60, 2)
+    h1 = box_core.holdout(S, train, test, **kw)
+    h2 = box_core.holdout(S, train, test, **kw, workers=2)
+    for name in h1.selectors:
+        np.testing.assert_array_equal(h2.order[name], h1.order[name])
