@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import contextlib
 import math
-import multiprocessing
+import os
+import pickle
+import subprocess
+import sys
 import time
 from collections.abc import Iterable, Mapping
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from functools import partial
 
@@ -495,14 +497,53 @@ class _Setup:
 
 @contextlib.contextmanager
 def _second_process(again, names):
-    """A future of ``again(only=names)`` computed in a second (spawned) process, or None
-    when ``names`` is empty."""
+    """A handle whose ``result()`` is ``again(only=names)`` computed by a second Python
+    process (None when ``names`` is empty).
+
+    The child is a fresh interpreter running :func:`_serve` (``python -c``), given this
+    process's ``sys.path`` and the pickled call on its stdin: unlike multiprocessing's
+    spawn it never imports the caller's main script, so a script without an
+    ``if __name__ == "__main__"`` guard, or code piped to ``python -``, works as well."""
     if not names:
         yield None
         return
-    with ProcessPoolExecutor(max_workers=1,
-                             mp_context=multiprocessing.get_context("spawn")) as pool:
-        yield pool.submit(again, only=tuple(names))
+    child = subprocess.Popen([sys.executable, "-c", "from box_core.loocv import _serve; _serve()"],
+                             stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                             env={**os.environ, "PYTHONPATH": os.pathsep.join(
+                                 p for p in sys.path if p)})
+    try:
+        with child.stdin:
+            pickle.dump((again, tuple(names)), child.stdin)
+        yield _ChildResult(child)
+    finally:
+        if child.poll() is None:
+            child.kill()
+        child.wait()
+
+
+@dataclass(eq=False)
+class _ChildResult:
+    child: subprocess.Popen
+
+    def result(self):
+        with self.child.stdout:
+            ok, value = pickle.load(self.child.stdout)
+        self.child.wait()
+        if not ok:
+            raise value
+        return value
+
+
+def _serve() -> None:
+    """The second process of :func:`_second_process`: one call from stdin, its result (or
+    the exception it raised) to stdout."""
+    again, names = pickle.load(sys.stdin.buffer)
+    try:
+        reply = (True, again(only=names))
+    except Exception as exc:  # the caller raises it
+        reply = (False, exc)
+    pickle.dump(reply, sys.stdout.buffer)
+    sys.stdout.buffer.flush()
 
 
 def _end_at_first_feasible(trace: TryTrace) -> None:

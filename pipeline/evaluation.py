@@ -59,6 +59,12 @@ def selector_params(names, settings) -> dict:
     return {"box": {"c": settings["c"]}} if "box" in names else {}
 
 
+#: From this many entries on, the tuned selectors run in a second process beside the others
+#: (box_core.loocv's ``workers``): below it they take about as long as starting one (~1 s);
+#: at the main job's 162,000 about 15 s.
+BESIDE_ENTRIES = 50_000
+
+
 def evaluate(ctx: StageContext) -> None:
     from pipeline.cluster import available_cores  # dask: only where a stage runs
 
@@ -84,7 +90,8 @@ def evaluate(ctx: StageContext) -> None:
                                 failure_rule=settings["failure_rule"], forbidden=hide,
                                 instance_features=instance_features(store),
                                 checks=store.result(SCORES, CHECKS),
-                                workers=available_cores())  # tuned selectors beside
+                                workers=available_cores() if scores.size >= BESIDE_ENTRIES
+                                else 1)
     except ValueError as exc:
         raise ValueError(f"evaluate: {exc}") from None
     others, curves = {}, {}

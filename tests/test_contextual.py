@@ -4,6 +4,9 @@ never sees the held-out row, the simulation of capped tries, and its input check
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -348,3 +351,19 @@ def test_tuned_selectors_in_a_second_process_give_the_same_result():
     h2 = box_core.holdout(S, train, test, **kw, workers=2)
     for name in h1.selectors:
         np.testing.assert_array_equal(h2.order[name], h1.order[name])
+
+
+def test_the_second_process_needs_no_main_guard_in_the_caller():
+    """Code piped to ``python -`` (no script file, no ``__main__`` guard) can ask for it:
+    the child never imports the caller's main module."""
+    code = ("import numpy as np, box_core\n"
+            "from tests.test_contextual import problem\n"
+            "S, F, T, C, X = problem(40, 6, 2, 1)\n"
+            "r = box_core.loocv(S, times=T, feasible=F, instance_features=X, checks=C,\n"
+            "                  selectors=('box', 'contextual'), workers=2,\n"
+            "                  measure_overhead=False)\n"
+            "print(sorted(r.tuning_seconds), r.order['contextual'].shape)\n")
+    res = subprocess.run([sys.executable, "-"], input=code, capture_output=True, text=True,
+                         cwd=Path(__file__).resolve().parents[1], check=False)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "['contextual'] (40, 6)"
