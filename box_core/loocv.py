@@ -465,6 +465,7 @@ class _Setup:
         seconds, which the trace's overhead leaves out)."""
         B = folds.Dn.shape[0]
         parts, chosen, tuning_seconds = [], {}, 0.0
+        uncapped = {}  # groups with the same uncapped settings run as one batch
         for g, (positions, rows) in enumerate(groups):
             clock = time.perf_counter()
             kwargs = tune(cls, self.Dn[rows], self.feas[rows], self.T[rows],
@@ -473,16 +474,21 @@ class _Setup:
                           None if self.forbidden is None else self.forbidden[rows],
                           memo=memo.setdefault(g, {}))
             tuning_seconds += time.perf_counter() - clock
-            part = folds.restrict(positions)
             # tries are capped only with features, stored checks and a finite cap
             if math.isfinite(kwargs.get("cap", math.inf)) and self.X is not None:
-                trace = _run_tries(cls, kwargs, part, measure)
-            else:
-                trace = _uncapped(*run(cls, kwargs, part, measure), part.T, part.feas)
-            parts.append((positions, trace))
+                parts.append((positions, _run_tries(cls, kwargs, folds.restrict(positions),
+                                                    measure)))
+            else:  # rows are independent: a batch of several groups gives each its trace
+                same = repr(sorted((key, np.asarray(v).tolist()) for key, v in kwargs.items()))
+                uncapped.setdefault(same, (kwargs, []))[1].append(positions)
             for key, value in kwargs.items():  # numbers, and the features' mask
                 value = np.asarray(value, dtype=np.float64)
                 chosen.setdefault(key, np.full((B,) + value.shape, np.nan))[positions] = value
+        for kwargs, held in uncapped.values():
+            positions = np.sort(np.concatenate(held))
+            part = folds.restrict(positions)
+            parts.append((positions, _uncapped(*run(cls, kwargs, part, measure), part.T,
+                                               part.feas)))
         width = max(tr.order.shape[1] for _, tr in parts)
         out = TryTrace(order=np.full((B, width), -1, dtype=np.intp),
                        allowance=np.zeros((B, width)), cost=np.zeros((B, width)),
