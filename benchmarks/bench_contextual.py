@@ -115,7 +115,7 @@ def main(argv=None) -> None:
         ratio, low, high = paired_ratio(box, t)
         step = res.first_feasible_step[name]
         tries = float((step[step >= 0] + 1).mean())
-        own = float(res.overhead[name].sum())  # the selector's compute, tuning included
+        own = float(res.overhead[name].sum()) + res.tuning_seconds.get(name, 0.0)  # tuning too
         print(f"{name:<18} {1e3 * np.nanmean(t):8.2f} {ratio:9.3f} "
               f"[{low:6.3f}, {high:6.3f}] {tries:6.2f} "
               f"{1e3 * budget_time(res, name, T, C, F, args.budget):9.2f} {own:7.1f}")
