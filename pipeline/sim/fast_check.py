@@ -332,6 +332,12 @@ class SphereRobot:
         lo = np.cumsum([0] + [len(g[2]) for g in groups])
         bounds = [_bounding(c, r) for _, c, r, _ in groups]
         gc, gr = [b[0] for b in bounds], [b[1] for b in bounds]
+        # parts riding on one frame keep their distance: a pair whose spheres are apart now
+        # is apart in every configuration, and the scan need not test it (its answer would
+        # be "apart" row after row); the proofs still see every pair (``_inner_vs_boxes``)
+        pairs = [p for p in pairs if not _rigidly_apart(groups[p[0]], groups[p[1]])]
+        scanned_box_pairs = [p for p in box_pairs
+                             if not _box_rigidly_apart(boxes[p[0]], groups[p[1]])]
         pa = np.array([p[0] for p in pairs], dtype=np.int64)
         pbb = np.array([p[1] for p in pairs], dtype=np.int64)
         return cls(np.array([g[0] for g in groups], dtype=np.int64), np.array(gc),
@@ -341,8 +347,8 @@ class SphereRobot:
                    pa, pbb, np.array([b[0] for b in boxes], dtype=np.int64),
                    np.array([b[1][:3] for b in boxes]).reshape(-1, 3, 4),
                    np.array([b[2] for b in boxes]).reshape(-1, 3) + BOX_MARGIN,
-                   np.array([p[0] for p in box_pairs], dtype=np.int64),
-                   np.array([p[1] for p in box_pairs], dtype=np.int64),
+                   np.array([p[0] for p in scanned_box_pairs], dtype=np.int64),
+                   np.array([p[1] for p in scanned_box_pairs], dtype=np.int64),
                    np.array([b[2] for b in boxes], float).reshape(-1, 3),
                    *_inner_arrays(inner), *hull_arrays, root,
                    _inner_vs_boxes(inner, boxes, box_pairs))
@@ -391,6 +397,35 @@ class SphereRobot:
             out[k] = True
             k = self.first(frames, world, k + 1, pre)
         return out
+
+
+#: how far apart (metres) two parts on one frame must be for :meth:`SphereRobot.build` to
+#: leave their pair out of the scan (far above the rounding of placing them in the world)
+RIGID_GAP = 1e-6
+
+
+def _rigidly_apart(a, b) -> bool:
+    """Are groups ``a`` and ``b`` (frame, centres, radii, ...) on one frame, with no
+    sphere of one touching a sphere of the other?"""
+    if a[0] != b[0] or not len(a[2]) or not len(b[2]):
+        return False
+    ca, cb = np.asarray(a[1], float), np.asarray(b[1], float)
+    gaps = (np.linalg.norm(ca[:, None] - cb[None], axis=2)
+            - np.asarray(a[2])[:, None] - np.asarray(b[2])[None])
+    return bool(gaps.min() > RIGID_GAP)
+
+
+def _box_rigidly_apart(box, group) -> bool:
+    """Are robot box ``box`` (frame, 4 × 4 pose, true half extents) and ``group`` on one
+    frame, with no sphere of the group reaching the box grown by BOX_MARGIN (the scan's
+    test)?"""
+    frame, T, half = box
+    if frame != group[0] or not len(group[2]):
+        return False
+    T = np.asarray(T, float)
+    local = np.abs((np.asarray(group[1], float) - T[:3, 3]) @ T[:3, :3])  # in the box's axes
+    outside = np.maximum(local - (np.asarray(half, float) + BOX_MARGIN), 0.0)
+    return bool((np.linalg.norm(outside, axis=1) - np.asarray(group[2])).min() > RIGID_GAP)
 
 
 def _hull_arrays(hulls, count: int):
@@ -543,10 +578,10 @@ class SphereChecker:
         b = np.ascontiguousarray(b, dtype=float)
         if self._args is None:
             self._args = self._motion_args()
-        kind, psi, step, table, chain, packed = self._args
+        kind, psi, step, table, chain, packed, memo = self._args
         cells = table.state if table is not None else _NO_CELLS
         steps, k, proved = collide.edge_first(a, b, resolution, limit, 0, kind, psi, step,
-                                              cells, chain, packed)
+                                              cells, chain, packed, memo)
         m = min(steps, limit)
         self.stats["rows"] += m
         while k < m:
@@ -556,7 +591,7 @@ class SphereChecker:
                 table.uncertain(a + ((order + 1) / steps)[:, None] * (b - a))
                 cells = table.state
                 steps, k, proved = collide.edge_first(a, b, resolution, limit, k, kind, psi,
-                                                      step, cells, chain, packed)
+                                                      step, cells, chain, packed, memo)
                 continue
             if proved:
                 self.stats["proved"] += 1
@@ -566,7 +601,7 @@ class SphereChecker:
             if self.exact(a + (int(check_order(steps)[k]) + 1) / steps * (b - a)):
                 return False, k + 1
             steps, k, proved = collide.edge_first(a, b, resolution, limit, k + 1, kind, psi,
-                                                  step, cells, chain, packed)
+                                                  step, cells, chain, packed, memo)
         return m >= steps, m
 
     def _one(self, state: np.ndarray) -> tuple[bool, int]:
@@ -576,14 +611,14 @@ class SphereChecker:
         q = np.ascontiguousarray(state, dtype=float)
         if self._args is None:
             self._args = self._motion_args()
-        kind, psi, step, table, chain, packed = self._args
+        kind, psi, step, table, chain, packed, memo = self._args
         cells = table.state if table is not None else _NO_CELLS
         _, k, proved = collide.edge_first(q, q, 1.0, 1, 0, kind, psi, step, cells, chain,
-                                          packed)
+                                          packed, memo)
         if k < 0:  # a wrist cell never computed
             table.uncertain(q[None])
             _, k, proved = collide.edge_first(q, q, 1.0, 1, 0, kind, psi, step, table.state,
-                                              chain, packed)
+                                              chain, packed, memo)
         if k >= 1:
             return True, 1
         if proved:
@@ -593,17 +628,20 @@ class SphereChecker:
         return (False, 1) if self.exact(state) else (True, 1)
 
     def _motion_args(self) -> tuple:
-        """(kind, psi_scale, wrist grid step, wrist table, chain, packed arrays) of
-        :func:`pipeline.sim.collide.edge_first`."""
+        """(kind, psi_scale, wrist grid step, wrist table, chain, packed arrays, memo) of
+        :func:`pipeline.sim.collide.edge_first` (the memo is this checker's own: its
+        robot and world are fixed)."""
         kind = self._motion
         packed = self.robot.packed(self.world)
+        memo = collide.near_memo((len(self.robot.grp_r), len(self.robot.rbox_T)),
+                                 len(self.world.box_c))
         if kind[0] == "arm":
             table = kind[3]
             chain = (np.ascontiguousarray(kind[1], dtype=float),
                      np.ascontiguousarray(kind[2], dtype=float),
                      np.ascontiguousarray(table.lower, dtype=float))
-            return 0, 1.0, wrist.STEP, table, chain, packed
-        return 1, float(kind[1]), 1.0, None, _NO_CHAIN, packed
+            return 0, 1.0, wrist.STEP, table, chain, packed, memo
+        return 1, float(kind[1]), 1.0, None, _NO_CHAIN, packed, memo
 
 
 def _arm_frames_fn(base: np.ndarray):
