@@ -526,6 +526,9 @@ class SphereChecker:
         #: ("arm", base link frame 3 × 4, chain origins, wrist table) or ("base", psi_scale)
         self._motion = motion if self.certified else None
         self._args = None
+        #: motions (a, b, resolution) refuted by geometry alone: the first row in check
+        #: order that is not cleared is a proven collision (``motion``'s rows)
+        self._refuted: dict[tuple, int] = {}
 
     def _pre(self, states: np.ndarray) -> np.ndarray:
         if self.also is None:
@@ -576,6 +579,11 @@ class SphereChecker:
             return ok and used >= len(states), used
         a = np.ascontiguousarray(a, dtype=float)
         b = np.ascontiguousarray(b, dtype=float)
+        key = (a.tobytes(), b.tobytes(), resolution)
+        refuted = self._refuted.get(key)
+        if refuted is not None:
+            return self._refuted_again(refuted, limit)
+        exact_before = self.stats["exact"]
         if self._args is None:
             self._args = self._motion_args()
         kind, psi, step, table, chain, packed, memo = self._args
@@ -595,6 +603,8 @@ class SphereChecker:
                 continue
             if proved:
                 self.stats["proved"] += 1
+                if self.stats["exact"] == exact_before:
+                    self._refuted[key] = k + 1
                 return False, k + 1
             self.stats["exact"] += 1
             # the state as interpolate makes it: a + t (b - a), t = (row + 1) / steps
@@ -603,6 +613,18 @@ class SphereChecker:
             steps, k, proved = collide.edge_first(a, b, resolution, limit, k + 1, kind, psi,
                                                   step, cells, chain, packed, memo)
         return m >= steps, m
+
+    def _refuted_again(self, rows: int, limit: int) -> tuple[bool, int]:
+        """:meth:`motion` of a motion it refuted before by geometry alone, its first
+        ``rows - 1`` rows cleared by the pre-check and row ``rows - 1`` a proven collision:
+        the same rows give the same answers (no pybullet check was involved, so nothing
+        that depends on what pybullet checked before), and a smaller ``limit`` stops the
+        scan among the cleared rows.  (Shortcutting draws the same blocked pair of
+        waypoints again and again.)"""
+        used = min(rows, limit)
+        self.stats["rows"] += used
+        self.stats["proved"] += used == rows
+        return False, used
 
     def _one(self, state: np.ndarray) -> tuple[bool, int]:
         """One configuration, as ``self(state[None])`` answers and counts it: the motion
