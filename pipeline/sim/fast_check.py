@@ -821,7 +821,13 @@ def _base_robot(client: int, arm_body: int, platform: int, base_pose: np.ndarray
         if box is None:
             return None
         boxes.append(box)
-    return SphereRobot.build(groups, boxes=boxes, hulls=hulls, reach=np.zeros(1))
+    # the inner spheres ride on the base frame too: one deep in a world box proves a
+    # collision of the arm (their links' contacts are collisions for the exact check)
+    inner_model = spheres.panda_inner_spheres()
+    inner_c = inner_model.world(arm)[0] @ to_base[:3, :3].T + to_base[:3, 3]
+    inner = (np.zeros(len(inner_c), dtype=np.int64), inner_c, inner_model.radii,
+             np.array([spheres.LINKS.index(int(k)) for k in inner_model.links]))
+    return SphereRobot.build(groups, boxes=boxes, inner=inner, hulls=hulls, reach=np.zeros(1))
 
 
 def _touches_world(client: int, body: int, robot_bodies) -> bool:
