@@ -466,10 +466,11 @@ def _proved(kind, fr, in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_so
         return True
     if box_c.shape[0] == 0:
         return False
-    return ((in_r.shape[0] > 0 and sphere_hit(f4, 0, in_frame, in_c, in_r, box_c, box_R,
-                                              box_h, box_r, depth))
-            or (rbox_solid.shape[0] > 0 and box_hit(f4, 0, rbox_frame, rbox_T, rbox_solid,
-                                                    box_c, box_R, box_h, box_r, depth)))
+    # the robot's few boxes first: the many inner spheres cost more to place and test
+    return ((rbox_solid.shape[0] > 0 and box_hit(f4, 0, rbox_frame, rbox_T, rbox_solid,
+                                                 box_c, box_R, box_h, box_r, depth))
+            or (in_r.shape[0] > 0 and sphere_hit(f4, 0, in_frame, in_c, in_r, box_c, box_R,
+                                                 box_h, box_r, depth)))
 
 
 @njit(cache=True)

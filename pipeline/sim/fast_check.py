@@ -383,10 +383,10 @@ class SphereRobot:
             return False
         boxes = (world.box_c, world.box_R, world.box_h, world.box_r, PROOF_DEPTH)
         return bool(
-            (len(self.in_r) and collide.sphere_hit(frames, n, self.in_frame, self.in_c,
-                                                   self.in_r, *boxes))
-            or (len(self.rbox_solid) and collide.box_hit(
-                frames, n, self.rbox_frame, self.rbox_T, self.rbox_solid, *boxes)))
+            (len(self.rbox_solid) and collide.box_hit(
+                frames, n, self.rbox_frame, self.rbox_T, self.rbox_solid, *boxes))
+            or (len(self.in_r) and collide.sphere_hit(frames, n, self.in_frame, self.in_c,
+                                                      self.in_r, *boxes)))
 
     def uncertain(self, frames: np.ndarray, world: World,
                   pre: np.ndarray | None = None) -> np.ndarray:
