@@ -398,3 +398,30 @@ def test_a_motion_refuted_by_geometry_is_answered_again_without_pybullet(carryin
     finally:
         checker.exact = rec.exact
     assert again > 20 and checked_again > 0
+
+
+def test_a_configuration_settled_by_geometry_is_answered_again_without_pybullet(carrying):
+    """A single configuration the pre-check cleared or proved colliding gets the exact
+    check's answer when asked again, and pybullet is not asked the second time."""
+    domain, inst, *_ = carrying
+    scene = domain.reset(inst)
+    model = FC.certified(scene.arm)
+    checker = model.checker
+    rec = _Recorder(checker.exact)
+    checker.exact = rec
+    rng = np.random.default_rng(7)
+    settled = 0
+    try:
+        for q in rng.uniform(np.maximum(P.LOWER, P.HOME - 1.5),
+                             np.minimum(P.UPPER, P.HOME + 1.5), (150, 7)):
+            rec.asked = []
+            first = model.check(q[None])
+            by_geometry = not rec.asked
+            rec.asked = []
+            assert model.check(q[None]) == first == scene.arm.check(q[None])
+            assert not (by_geometry and rec.asked)
+            settled += by_geometry
+    finally:
+        checker.exact = rec.exact
+    assert settled > 0
+    assert checker.stats["proved"] > 0

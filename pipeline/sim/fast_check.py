@@ -529,6 +529,9 @@ class SphereChecker:
         #: motions (a, b, resolution) refuted by geometry alone: the first row in check
         #: order that is not cleared is a proven collision (``motion``'s rows)
         self._refuted: dict[tuple, int] = {}
+        #: single configurations decided by geometry alone (cleared, or a proven
+        #: collision): asked again (a planning call's start and goal are), the same answer
+        self._settled: dict[bytes, bool] = {}
 
     def _pre(self, states: np.ndarray) -> np.ndarray:
         if self.also is None:
@@ -631,6 +634,11 @@ class SphereChecker:
         state→state (its only configuration is ``state``) in one compiled call."""
         self.stats["rows"] += 1
         q = np.ascontiguousarray(state, dtype=float)
+        key = q.tobytes()
+        settled = self._settled.get(key)
+        if settled is not None:
+            self.stats["proved"] += not settled
+            return settled, 1
         if self._args is None:
             self._args = self._motion_args()
         kind, psi, step, table, chain, packed, memo = self._args
@@ -642,9 +650,11 @@ class SphereChecker:
             _, k, proved = collide.edge_first(q, q, 1.0, 1, 0, kind, psi, step, table.state,
                                               chain, packed, memo)
         if k >= 1:
+            self._settled[key] = True
             return True, 1
         if proved:
             self.stats["proved"] += 1
+            self._settled[key] = False
             return False, 1
         self.stats["exact"] += 1
         return (False, 1) if self.exact(state) else (True, 1)
