@@ -301,3 +301,127 @@ def test_shortcut_pairs_are_numpys_and_leave_the_generator_as_numpy_does():
 def test_check_order_in_the_scan_is_the_planners():
     for k in range(1, 300):
         np.testing.assert_array_equal(collide._check_order(k, k), check_order(k))
+
+
+# -- what the scan leaves out, and motions answered again ------------------------------------
+
+def test_parts_left_out_of_the_scan_never_touch():
+    """Group pairs (and robot box, group pairs) that SphereRobot.build leaves out of the
+    scan ride on one frame and stay apart in every configuration; the others are kept."""
+    client = connect()
+    try:
+        arm = P.Panda(client, (0.0, 0.0, 0.0))
+        groups, _, pairs, _ = FC._panda_parts(frozenset(arm.ignored_pairs))
+    finally:
+        pb.disconnect(physicsClientId=client)
+    left_out = [p for p in pairs if FC._rigidly_apart(groups[p[0]], groups[p[1]])]
+    assert left_out and len(left_out) < len(pairs)
+    robot = FC.SphereRobot.build(groups, pairs)
+    assert len(robot.pair_a) == len(pairs) - len(left_out)
+    frames = FC._arm_frames_fn(np.eye(4))(np.random.default_rng(4).uniform(
+        P.LOWER, P.UPPER, (200, 7)))
+    for a, b in left_out:
+        assert groups[a][0] == groups[b][0]
+        F = frames[:, groups[a][0]]
+        ca = np.einsum("nij,kj->nki", F[:, :, :3], groups[a][1]) + F[:, None, :, 3]
+        cb = np.einsum("nij,kj->nki", F[:, :, :3], groups[b][1]) + F[:, None, :, 3]
+        gap = (np.linalg.norm(ca[:, :, None] - cb[:, None], axis=3)
+               - groups[a][2][:, None] - groups[b][2][None])
+        assert gap.min() > FC.RIGID_GAP
+    # a box on the hand's frame next to the fingers is kept, one far from it is left out
+    hand = next(g for g in groups if g[0] == 7)
+    near = (7, np.eye(4), np.full(3, 0.05))
+    lifted = np.eye(4)
+    lifted[2, 3] = 2.0
+    far = (7, lifted, np.full(3, 0.05))
+    assert not FC._box_rigidly_apart(near, hand) and FC._box_rigidly_apart(far, hand)
+
+
+def test_a_base_edge_looks_at_every_box_its_root_sphere_reaches(carrying):
+    """The boxes _planar_candidates leaves out are missed by the root sphere at every
+    state of the edge (the per-row test would leave them out too)."""
+    domain, inst, theta, carry = carrying
+    domain.reset(inst)
+    domain.hold(inst, theta.grasp, carry)
+    scene = domain.scene_of()
+    model = FC.certified(scene.base)
+    robot, world = model.checker.robot, model.checker.world
+    rng = np.random.default_rng(5)
+    lo, hi = scene.base.lower, scene.base.upper
+    left_out = 0
+    for _ in range(60):
+        a = rng.uniform(lo, hi)
+        b = a + (rng.uniform(lo, hi) - a) * rng.uniform(0.05, 1.0)
+        kept = set(collide._planar_candidates(a, b, robot.root_c, robot.root_r, world.box_c,
+                                              world.box_e).tolist())
+        states = interpolate(a, b, 0.04)
+        frames = np.empty((len(states), 1, 3, 4))
+        collide.planar_frames(states, domain.config.psi_scale, frames)
+        centres = frames[:, 0, :, :3] @ robot.root_c + frames[:, 0, :, 3]
+        for m in set(range(len(world.box_c))) - kept:
+            left_out += 1
+            for c in centres:
+                assert collide._off_aabb(c[0], c[1], c[2], robot.root_r, world.box_c[m],
+                                         world.box_e[m])
+    assert left_out > 0
+
+
+def test_a_motion_refuted_by_geometry_is_answered_again_without_pybullet(carrying):
+    """Asked again (shortcutting redraws blocked pairs), with the same or a smaller limit,
+    a motion that geometry alone refuted gets the generic check's answer and count, and
+    pybullet is not asked; motions pybullet decided are checked again."""
+    domain, inst, theta, carry = carrying
+    domain.reset(inst)
+    domain.hold(inst, theta.grasp, carry)
+    scene = domain.scene_of()
+    model = FC.certified(scene.base)
+    checker = model.checker
+    rec = _Recorder(checker.exact)
+    checker.exact = rec
+    again = checked_again = 0
+    try:
+        for a, b, _ in _edges(np.random.default_rng(6), scene.base.lower, scene.base.upper,
+                              80, 0.04):
+            rec.asked = []
+            first = model.check_motion(a, b, 0.04, 10**6)
+            refuted = (a.tobytes(), b.tobytes(), 0.04) in checker._refuted
+            assert not (refuted and rec.asked)
+            for limit in (10**6, first[1], max(1, first[1] - 1), 1):
+                rec.asked = []
+                answer = model.check_motion(a, b, 0.04, limit)
+                asked = rec.asked
+                assert answer == Robot.check_motion(scene.base, a, b, 0.04, limit)
+                if refuted:
+                    assert not asked
+                    again += 1
+                checked_again += bool(asked)
+    finally:
+        checker.exact = rec.exact
+    assert again > 20 and checked_again > 0
+
+
+def test_a_configuration_settled_by_geometry_is_answered_again_without_pybullet(carrying):
+    """A single configuration the pre-check cleared or proved colliding gets the exact
+    check's answer when asked again, and pybullet is not asked the second time."""
+    domain, inst, *_ = carrying
+    scene = domain.reset(inst)
+    model = FC.certified(scene.arm)
+    checker = model.checker
+    rec = _Recorder(checker.exact)
+    checker.exact = rec
+    rng = np.random.default_rng(7)
+    settled = 0
+    try:
+        for q in rng.uniform(np.maximum(P.LOWER, P.HOME - 1.5),
+                             np.minimum(P.UPPER, P.HOME + 1.5), (150, 7)):
+            rec.asked = []
+            first = model.check(q[None])
+            by_geometry = not rec.asked
+            rec.asked = []
+            assert model.check(q[None]) == first == scene.arm.check(q[None])
+            assert not (by_geometry and rec.asked)
+            settled += by_geometry
+    finally:
+        checker.exact = rec.exact
+    assert settled > 0
+    assert checker.stats["proved"] > 0

@@ -466,10 +466,11 @@ def _proved(kind, fr, in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_so
         return True
     if box_c.shape[0] == 0:
         return False
-    return ((in_r.shape[0] > 0 and sphere_hit(f4, 0, in_frame, in_c, in_r, box_c, box_R,
-                                              box_h, box_r, depth))
-            or (rbox_solid.shape[0] > 0 and box_hit(f4, 0, rbox_frame, rbox_T, rbox_solid,
-                                                    box_c, box_R, box_h, box_r, depth)))
+    # the robot's few boxes first: the many inner spheres cost more to place and test
+    return ((rbox_solid.shape[0] > 0 and box_hit(f4, 0, rbox_frame, rbox_T, rbox_solid,
+                                                 box_c, box_R, box_h, box_r, depth))
+            or (in_r.shape[0] > 0 and sphere_hit(f4, 0, in_frame, in_c, in_r, box_c, box_R,
+                                                 box_h, box_r, depth)))
 
 
 @njit(cache=True)
@@ -525,10 +526,56 @@ def pack(values: dict, layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             meta)
 
 
+def near_memo(robot_sizes: tuple[int, int], boxes: int) -> tuple[np.ndarray, np.ndarray]:
+    """An empty memo of the boxes near a robot of (groups, robot boxes) ``robot_sizes`` in
+    a world of ``boxes`` boxes, for :func:`edge_first` (``memo``): the root frame they
+    were found for (3 × 4, NaN: none yet) and the lists themselves."""
+    groups, rboxes = robot_sizes
+    return (np.full(12, np.nan),
+            np.zeros(1 + boxes + groups + groups * boxes + rboxes + rboxes * boxes, np.int64))
+
+
+@njit(cache=True)
+def _memo_views(memo_i, G, R, B):  # pragma: no cover (compiled)
+    """(count of near boxes (1,), near, gcount, gnear, bcount, bnear) inside ``memo_i``."""
+    o = 1 + B
+    gnear = memo_i[o + G:o + G + G * B].reshape((G, B))
+    o2 = o + G + G * B
+    return (memo_i[0:1], memo_i[1:o], memo_i[o:o + G], gnear, memo_i[o2:o2 + R],
+            memo_i[o2 + R:o2 + R + R * B].reshape((R, B)))
+
+
+@njit(cache=True)
+def _planar_candidates(qa, qb, root_c, root_r, box_c, box_e):  # pragma: no cover (compiled)
+    """The boxes that the root sphere (``root_c`` in the base frame, radius ``root_r``) of
+    a base moving in a straight line from (x, y) = qa[:2] to qb[:2] can reach: the others
+    are at least ``root_r`` from every place of the sphere's centre (it stays within
+    |root_c| of the floor point (x, y, 0)), so the per-row test would leave them out."""
+    out = np.empty(box_c.shape[0], dtype=np.int64)
+    n = 0
+    lift = math.sqrt(root_c[0] ** 2 + root_c[1] ** 2 + root_c[2] ** 2) + 1e-9
+    lo = np.empty(3)
+    hi = np.empty(3)
+    for i in range(2):
+        lo[i] = min(qa[i], qb[i]) - lift
+        hi[i] = max(qa[i], qb[i]) + lift
+    lo[2], hi[2] = -lift, lift
+    for m in range(box_c.shape[0]):
+        acc = 0.0
+        for i in range(3):
+            gap = max(box_c[m, i] - box_e[m, i] - hi[i], lo[i] - box_c[m, i] - box_e[m, i])
+            if gap > 0.0:
+                acc += gap * gap
+        if root_r == np.inf or acc < (root_r + 1e-9) ** 2:
+            out[n] = m
+            n += 1
+    return out[:n]
+
+
 @njit(cache=True)
 def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_step,
           wrist_state, base, origins, wrist_lower, rf, ri, rm, wf, wi, wm, root_frame, root_r,
-          depth):  # pragma: no cover (compiled)
+          depth, memo_f, memo_i):  # pragma: no cover (compiled)
     """The scan of :func:`first_uncertain` (``kind`` 2: the configurations' ``frames``
     and ``pre`` are given) and of :func:`edge_first` (``kind`` 0: an arm, 1: a base; the
     configurations are made on the way).  Returns (steps, position, proved): proved when
@@ -552,15 +599,20 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
     proof = (in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_solid, box_c, box_R, box_h,
              box_r, depth)
     gw, sw = np.empty((G, 3)), np.empty((S, 3))
-    done, near = np.zeros(G, dtype=np.bool_), np.empty(B, dtype=np.int64)
+    done = np.zeros(G, dtype=np.bool_)
     R = rbox_T.shape[0]
     # the boxes each group (and each robot box) can reach while the root frame stands
-    # still (an arm on a fixed base: once per motion); a rigid robot (one frame, moving
-    # every configuration) looks at every box near the root
-    gnear, gcount = np.empty((G, B), dtype=np.int64), np.zeros(G, dtype=np.int64)
-    bnear, bcount = np.empty((R, B), dtype=np.int64), np.zeros(R, dtype=np.int64)
-    last, rw, Rw, cw = np.full((3, 4), np.nan), np.empty(3), np.empty((3, 3)), np.empty(3)
-    nb = 0
+    # still (an arm on a fixed base: found once, then kept in the memo for the next calls
+    # with the same root frame); a rigid robot (one frame, moving every configuration)
+    # looks at every box near the root
+    if memo_i.shape[0] != 1 + B + G + G * B + R + R * B:  # no memo: a fresh one
+        memo_f = np.full(12, np.nan)
+        memo_i = np.zeros(1 + B + G + G * B + R + R * B, dtype=np.int64)
+    nbv, near, gcount, gnear, bcount, bnear = _memo_views(memo_i, G, R, B)
+    last = memo_f.reshape((3, 4))
+    rw, Rw, cw = np.empty(3), np.empty((3, 3)), np.empty(3)
+    nb = nbv[0]
+    cand = np.arange(B)
     d = qa.shape[0]
     diff = np.empty(d)
     q = np.empty(d)
@@ -578,6 +630,8 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
         rows = min(steps, limit)
         order = _check_order(steps, rows)
         buf = np.empty((8 if kind == 0 else 1, 3, 4))
+        if kind == 1:
+            cand = _planar_candidates(qa, qb, root_c, root_r, box_c, box_e)
     articulated = (frames.shape[1] if kind == 2 else buf.shape[0]) > 1
     ni, nk = wrist_state.shape[0], wrist_state.shape[1]
     for pos in range(start, rows):
@@ -618,7 +672,7 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
             last[:, :] = F0
             _apply(F0, root_c, rw)
             nb = 0
-            for m in range(box_c.shape[0]):
+            for m in cand:
                 if root_r == np.inf or (
                         not _off_aabb(rw[0], rw[1], rw[2], root_r, box_c[m], box_e[m])
                         and _sphere_box(rw, root_r, box_c[m], box_R[m], box_h[m])):
@@ -641,6 +695,7 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
                     gcount[g] = c
                 else:
                     bcount[g - G] = c
+            nbv[0] = nb
         for g in range(G):
             _apply(fr[grp_frame[g]], grp_c[g], gw[g])
             done[g] = False
@@ -762,6 +817,7 @@ _NO_PRE = np.zeros(0, dtype=np.bool_)
 _NO_FRAMES = np.empty((0, 1, 3, 4))
 _NO_CELLS = np.ones((1, 1), dtype=np.int8)
 _NO_CHAIN = (np.zeros((3, 4)), np.zeros((7, 3, 4)), np.zeros(2))
+_NO_MEMO = np.zeros(0, dtype=np.int64)
 
 
 def first_uncertain(frames, start, pre, packed) -> int:
@@ -785,11 +841,11 @@ def first_uncertain(frames, start, pre, packed) -> int:
     each group and robot box: boxes they miss are not looked at.
     """
     return _scan(2, frames, pre, _NO_STATE, _NO_STATE, 1.0, 0, start, 1.0, 1.0, _NO_CELLS,
-                 *_NO_CHAIN, *packed)[1]
+                 *_NO_CHAIN, *packed, _NO_STATE, _NO_MEMO)[1]
 
 
 def edge_first(a, b, resolution, limit, start, kind, psi_scale, wrist_step, wrist_state,
-               chain, packed) -> tuple[int, int, bool]:
+               chain, packed, memo=None) -> tuple[int, int, bool]:
     """:func:`first_uncertain` over the straight motion a→b as
     :meth:`pipeline.planning.base.Robot.check_motion` checks it, without making its
     states first: the states of :func:`pipeline.planning.base.interpolate` (``steps`` of
@@ -802,9 +858,12 @@ def edge_first(a, b, resolution, limit, start, kind, psi_scale, wrist_step, wris
     base frame, and the wrist table ``wrist_state`` on a grid of ``wrist_step`` from the
     wrist grid origin: a cell not known free is a doubt; a cell not
     known at all ends the scan with position -1 - k, for the caller to fill it); 1: a base
-    (:func:`planar_frames`)."""
+    (:func:`planar_frames`).  ``memo``: None, or a :func:`near_memo` for this robot and
+    world, kept by the caller from call to call (an arm's base stands still over a
+    planning call: the boxes near it are found once)."""
+    memo_f, memo_i = (_NO_STATE, _NO_MEMO) if memo is None else memo
     return _scan(kind, _NO_FRAMES, _NO_PRE, a, b, resolution, limit, start, psi_scale,
-                 wrist_step, wrist_state, *chain, *packed)
+                 wrist_step, wrist_state, *chain, *packed, memo_f, memo_i)
 
 
 @njit(cache=True)

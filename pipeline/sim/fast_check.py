@@ -332,6 +332,12 @@ class SphereRobot:
         lo = np.cumsum([0] + [len(g[2]) for g in groups])
         bounds = [_bounding(c, r) for _, c, r, _ in groups]
         gc, gr = [b[0] for b in bounds], [b[1] for b in bounds]
+        # parts riding on one frame keep their distance: a pair whose spheres are apart now
+        # is apart in every configuration, and the scan need not test it (its answer would
+        # be "apart" row after row); the proofs still see every pair (``_inner_vs_boxes``)
+        pairs = [p for p in pairs if not _rigidly_apart(groups[p[0]], groups[p[1]])]
+        scanned_box_pairs = [p for p in box_pairs
+                             if not _box_rigidly_apart(boxes[p[0]], groups[p[1]])]
         pa = np.array([p[0] for p in pairs], dtype=np.int64)
         pbb = np.array([p[1] for p in pairs], dtype=np.int64)
         return cls(np.array([g[0] for g in groups], dtype=np.int64), np.array(gc),
@@ -341,8 +347,8 @@ class SphereRobot:
                    pa, pbb, np.array([b[0] for b in boxes], dtype=np.int64),
                    np.array([b[1][:3] for b in boxes]).reshape(-1, 3, 4),
                    np.array([b[2] for b in boxes]).reshape(-1, 3) + BOX_MARGIN,
-                   np.array([p[0] for p in box_pairs], dtype=np.int64),
-                   np.array([p[1] for p in box_pairs], dtype=np.int64),
+                   np.array([p[0] for p in scanned_box_pairs], dtype=np.int64),
+                   np.array([p[1] for p in scanned_box_pairs], dtype=np.int64),
                    np.array([b[2] for b in boxes], float).reshape(-1, 3),
                    *_inner_arrays(inner), *hull_arrays, root,
                    _inner_vs_boxes(inner, boxes, box_pairs))
@@ -377,10 +383,10 @@ class SphereRobot:
             return False
         boxes = (world.box_c, world.box_R, world.box_h, world.box_r, PROOF_DEPTH)
         return bool(
-            (len(self.in_r) and collide.sphere_hit(frames, n, self.in_frame, self.in_c,
-                                                   self.in_r, *boxes))
-            or (len(self.rbox_solid) and collide.box_hit(
-                frames, n, self.rbox_frame, self.rbox_T, self.rbox_solid, *boxes)))
+            (len(self.rbox_solid) and collide.box_hit(
+                frames, n, self.rbox_frame, self.rbox_T, self.rbox_solid, *boxes))
+            or (len(self.in_r) and collide.sphere_hit(frames, n, self.in_frame, self.in_c,
+                                                      self.in_r, *boxes)))
 
     def uncertain(self, frames: np.ndarray, world: World,
                   pre: np.ndarray | None = None) -> np.ndarray:
@@ -391,6 +397,35 @@ class SphereRobot:
             out[k] = True
             k = self.first(frames, world, k + 1, pre)
         return out
+
+
+#: how far apart (metres) two parts on one frame must be for :meth:`SphereRobot.build` to
+#: leave their pair out of the scan (far above the rounding of placing them in the world)
+RIGID_GAP = 1e-6
+
+
+def _rigidly_apart(a, b) -> bool:
+    """Are groups ``a`` and ``b`` (frame, centres, radii, ...) on one frame, with no
+    sphere of one touching a sphere of the other?"""
+    if a[0] != b[0] or not len(a[2]) or not len(b[2]):
+        return False
+    ca, cb = np.asarray(a[1], float), np.asarray(b[1], float)
+    gaps = (np.linalg.norm(ca[:, None] - cb[None], axis=2)
+            - np.asarray(a[2])[:, None] - np.asarray(b[2])[None])
+    return bool(gaps.min() > RIGID_GAP)
+
+
+def _box_rigidly_apart(box, group) -> bool:
+    """Are robot box ``box`` (frame, 4 × 4 pose, true half extents) and ``group`` on one
+    frame, with no sphere of the group reaching the box grown by BOX_MARGIN (the scan's
+    test)?"""
+    frame, T, half = box
+    if frame != group[0] or not len(group[2]):
+        return False
+    T = np.asarray(T, float)
+    local = np.abs((np.asarray(group[1], float) - T[:3, 3]) @ T[:3, :3])  # in the box's axes
+    outside = np.maximum(local - (np.asarray(half, float) + BOX_MARGIN), 0.0)
+    return bool((np.linalg.norm(outside, axis=1) - np.asarray(group[2])).min() > RIGID_GAP)
 
 
 def _hull_arrays(hulls, count: int):
@@ -491,6 +526,12 @@ class SphereChecker:
         #: ("arm", base link frame 3 × 4, chain origins, wrist table) or ("base", psi_scale)
         self._motion = motion if self.certified else None
         self._args = None
+        #: motions (a, b, resolution) refuted by geometry alone: the first row in check
+        #: order that is not cleared is a proven collision (``motion``'s rows)
+        self._refuted: dict[tuple, int] = {}
+        #: single configurations decided by geometry alone (cleared, or a proven
+        #: collision): asked again (about one in six in pick_place), the same answer
+        self._settled: dict[bytes, bool] = {}
 
     def _pre(self, states: np.ndarray) -> np.ndarray:
         if self.also is None:
@@ -541,12 +582,17 @@ class SphereChecker:
             return ok and used >= len(states), used
         a = np.ascontiguousarray(a, dtype=float)
         b = np.ascontiguousarray(b, dtype=float)
+        key = (a.tobytes(), b.tobytes(), resolution)
+        refuted = self._refuted.get(key)
+        if refuted is not None:
+            return self._refuted_again(refuted, limit)
+        exact_before = self.stats["exact"]
         if self._args is None:
             self._args = self._motion_args()
-        kind, psi, step, table, chain, packed = self._args
+        kind, psi, step, table, chain, packed, memo = self._args
         cells = table.state if table is not None else _NO_CELLS
         steps, k, proved = collide.edge_first(a, b, resolution, limit, 0, kind, psi, step,
-                                              cells, chain, packed)
+                                              cells, chain, packed, memo)
         m = min(steps, limit)
         self.stats["rows"] += m
         while k < m:
@@ -556,54 +602,78 @@ class SphereChecker:
                 table.uncertain(a + ((order + 1) / steps)[:, None] * (b - a))
                 cells = table.state
                 steps, k, proved = collide.edge_first(a, b, resolution, limit, k, kind, psi,
-                                                      step, cells, chain, packed)
+                                                      step, cells, chain, packed, memo)
                 continue
             if proved:
                 self.stats["proved"] += 1
+                if self.stats["exact"] == exact_before:
+                    self._refuted[key] = k + 1
                 return False, k + 1
             self.stats["exact"] += 1
             # the state as interpolate makes it: a + t (b - a), t = (row + 1) / steps
             if self.exact(a + (int(check_order(steps)[k]) + 1) / steps * (b - a)):
                 return False, k + 1
             steps, k, proved = collide.edge_first(a, b, resolution, limit, k + 1, kind, psi,
-                                                  step, cells, chain, packed)
+                                                  step, cells, chain, packed, memo)
         return m >= steps, m
+
+    def _refuted_again(self, rows: int, limit: int) -> tuple[bool, int]:
+        """:meth:`motion` of a motion it refuted before by geometry alone, its first
+        ``rows - 1`` rows cleared by the pre-check and row ``rows - 1`` a proven collision:
+        the same rows give the same answers (no pybullet check was involved, so nothing
+        that depends on what pybullet checked before), and a smaller ``limit`` stops the
+        scan among the cleared rows.  (Shortcutting draws the same blocked pair of
+        waypoints again and again.)"""
+        used = min(rows, limit)
+        self.stats["rows"] += used
+        self.stats["proved"] += used == rows
+        return False, used
 
     def _one(self, state: np.ndarray) -> tuple[bool, int]:
         """One configuration, as ``self(state[None])`` answers and counts it: the motion
         state→state (its only configuration is ``state``) in one compiled call."""
         self.stats["rows"] += 1
         q = np.ascontiguousarray(state, dtype=float)
+        key = q.tobytes()
+        settled = self._settled.get(key)
+        if settled is not None:
+            self.stats["proved"] += not settled
+            return settled, 1
         if self._args is None:
             self._args = self._motion_args()
-        kind, psi, step, table, chain, packed = self._args
+        kind, psi, step, table, chain, packed, memo = self._args
         cells = table.state if table is not None else _NO_CELLS
         _, k, proved = collide.edge_first(q, q, 1.0, 1, 0, kind, psi, step, cells, chain,
-                                          packed)
+                                          packed, memo)
         if k < 0:  # a wrist cell never computed
             table.uncertain(q[None])
             _, k, proved = collide.edge_first(q, q, 1.0, 1, 0, kind, psi, step, table.state,
-                                              chain, packed)
+                                              chain, packed, memo)
         if k >= 1:
+            self._settled[key] = True
             return True, 1
         if proved:
             self.stats["proved"] += 1
+            self._settled[key] = False
             return False, 1
         self.stats["exact"] += 1
         return (False, 1) if self.exact(state) else (True, 1)
 
     def _motion_args(self) -> tuple:
-        """(kind, psi_scale, wrist grid step, wrist table, chain, packed arrays) of
-        :func:`pipeline.sim.collide.edge_first`."""
+        """(kind, psi_scale, wrist grid step, wrist table, chain, packed arrays, memo) of
+        :func:`pipeline.sim.collide.edge_first` (the memo is this checker's own: its
+        robot and world are fixed)."""
         kind = self._motion
         packed = self.robot.packed(self.world)
+        memo = collide.near_memo((len(self.robot.grp_r), len(self.robot.rbox_T)),
+                                 len(self.world.box_c))
         if kind[0] == "arm":
             table = kind[3]
             chain = (np.ascontiguousarray(kind[1], dtype=float),
                      np.ascontiguousarray(kind[2], dtype=float),
                      np.ascontiguousarray(table.lower, dtype=float))
-            return 0, 1.0, wrist.STEP, table, chain, packed
-        return 1, float(kind[1]), 1.0, None, _NO_CHAIN, packed
+            return 0, 1.0, wrist.STEP, table, chain, packed, memo
+        return 1, float(kind[1]), 1.0, None, _NO_CHAIN, packed, memo
 
 
 def _arm_frames_fn(base: np.ndarray):
@@ -761,7 +831,13 @@ def _base_robot(client: int, arm_body: int, platform: int, base_pose: np.ndarray
         if box is None:
             return None
         boxes.append(box)
-    return SphereRobot.build(groups, boxes=boxes, hulls=hulls, reach=np.zeros(1))
+    # the inner spheres ride on the base frame too: one deep in a world box proves a
+    # collision of the arm (their links' contacts are collisions for the exact check)
+    inner_model = spheres.panda_inner_spheres()
+    inner_c = inner_model.world(arm)[0] @ to_base[:3, :3].T + to_base[:3, 3]
+    inner = (np.zeros(len(inner_c), dtype=np.int64), inner_c, inner_model.radii,
+             np.array([spheres.LINKS.index(int(k)) for k in inner_model.links]))
+    return SphereRobot.build(groups, boxes=boxes, inner=inner, hulls=hulls, reach=np.zeros(1))
 
 
 def _touches_world(client: int, body: int, robot_bodies) -> bool:
