@@ -533,7 +533,12 @@ class _ChildResult:
 
     def result(self):
         with self.child.stdout:
-            ok, value = pickle.load(self.child.stdout)
+            try:
+                ok, value = pickle.load(self.child.stdout)
+            except EOFError:  # it died without a reply (killed, out of memory)
+                ok, value = False, RuntimeError(
+                    f"loocv's second process ended with exit code {self.child.wait()} "
+                    "before it replied")
         self.child.wait()
         if not ok:
             raise value

@@ -45,8 +45,9 @@ def sliced(make_try, cap: int):
     return result, pauses
 
 
-def interleaved(tries: list, cap: int) -> list:
-    """Advance several tries in turn, ``cap`` checks each time, until all ended."""
+def interleaved(tries: list, cap: int, between=lambda: None) -> list:
+    """Advance several tries in turn, ``cap`` checks each time, until all ended;
+    ``between()`` runs after each round."""
     results = [None] * len(tries)
     k = 0
     while any(r is None for r in results):
@@ -54,6 +55,7 @@ def interleaved(tries: list, cap: int) -> list:
         for i, t in enumerate(tries):
             if results[i] is None:
                 results[i] = t.advance(cap * k)
+        between()
     return results
 
 
@@ -160,14 +162,8 @@ def test_interleaved_grasp_arm_entries_of_different_instances(grasp_arm):
     wholes = [grasp_arm.plan(insts[i], j, 1000 * i + j) for i, j in entries]
     for cap in (7, 500):
         tries = [grasp_arm.start_try(insts[i], j, 1000 * i + j) for i, j in entries]
-        results = [None] * len(tries)
-        k = 0
-        while any(r is None for r in results):
-            k += 1
-            for n, t in enumerate(tries):
-                if results[n] is None:
-                    results[n] = t.advance(cap * k)
-            grasp_arm.plan(insts[0], 81, 5)  # another call between the slices
+        # another planning call between the slices
+        results = interleaved(tries, cap, lambda: grasp_arm.plan(insts[0], 81, 5))
         for resumed, whole in zip(results, wholes, strict=True):
             assert_same(resumed, whole)
 
