@@ -30,19 +30,7 @@ def arm_frames(q, base, origins, out):  # pragma: no cover (compiled)
     """Frames (N, 8, 3, 4) of a 7-joint chain whose joints rotate about their own z:
     frame 0 is ``base`` (3 × 4), frame k + 1 = frame k · origins[k] · Rz(q[k])."""
     for n in range(q.shape[0]):
-        out[n, 0] = base
-        for k in range(7):
-            c, s = math.cos(q[n, k]), math.sin(q[n, k])
-            for i in range(3):
-                p0, p1, p2 = out[n, k, i, 0], out[n, k, i, 1], out[n, k, i, 2]
-                o = origins[k]
-                a0 = p0 * o[0, 0] + p1 * o[1, 0] + p2 * o[2, 0]
-                a1 = p0 * o[0, 1] + p1 * o[1, 1] + p2 * o[2, 1]
-                a2 = p0 * o[0, 2] + p1 * o[1, 2] + p2 * o[2, 2]
-                out[n, k + 1, i, 3] = p0 * o[0, 3] + p1 * o[1, 3] + p2 * o[2, 3] + out[n, k, i, 3]
-                out[n, k + 1, i, 0] = c * a0 + s * a1
-                out[n, k + 1, i, 1] = c * a1 - s * a0
-                out[n, k + 1, i, 2] = a2
+        _chain(q[n], base, origins, out[n])
 
 
 @njit(cache=True)
@@ -416,7 +404,9 @@ def _face_gap(ca, Ra, ha, cb, Rb, hb):  # pragma: no cover (compiled)
 @njit(cache=True)
 def _chain(q, base, origins, out):  # pragma: no cover (compiled)
     """:func:`arm_frames` of one configuration q (7,) into out (8, 3, 4)."""
-    out[0] = base
+    for i in range(3):  # element by element: a whole-slice copy compiles a shape check
+        for j in range(4):  # whose error message alone costs seconds of numba's time
+            out[0, i, j] = base[i, j]
     for k in range(7):
         c, s = math.cos(q[k]), math.sin(q[k])
         o = origins[k]
@@ -461,31 +451,34 @@ def _proved(kind, fr, in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_so
     if kind == 2:
         return False
     f4 = fr.reshape((1, fr.shape[0], 3, 4))
-    if in_rbox.size and inner_hit_rbox(f4, 0, in_frame, in_c, in_r, in_rbox, rbox_frame,
+    first = np.int64(0)  # not the literal 0: that would compile the kernels below once more
+    if in_rbox.size and inner_hit_rbox(f4, first, in_frame, in_c, in_r, in_rbox, rbox_frame,
                                        rbox_T, rbox_solid, depth):
         return True
     if box_c.shape[0] == 0:
         return False
     # the robot's few boxes first: the many inner spheres cost more to place and test
-    return ((rbox_solid.shape[0] > 0 and box_hit(f4, 0, rbox_frame, rbox_T, rbox_solid,
+    return ((rbox_solid.shape[0] > 0 and box_hit(f4, first, rbox_frame, rbox_T, rbox_solid,
                                                  box_c, box_R, box_h, box_r, depth))
-            or (in_r.shape[0] > 0 and sphere_hit(f4, 0, in_frame, in_c, in_r, box_c, box_R,
+            or (in_r.shape[0] > 0 and sphere_hit(f4, first, in_frame, in_c, in_r, box_c, box_R,
                                                  box_h, box_r, depth)))
 
 
-@njit(cache=True)
+# inlined: :func:`_scan` calls these with literal indices, and numba would compile a separate
+# specialization for each literal (38 of them, seconds of a cold start)
+@njit(cache=True, inline="always")
 def _f1(fb, meta, k):  # pragma: no cover (compiled)
     o = meta[k, 0]
     return fb[o:o + meta[k, 1]]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _f2(fb, meta, k):  # pragma: no cover (compiled)
     o, n0, n1 = meta[k, 0], meta[k, 1], meta[k, 2]
     return fb[o:o + n0 * n1].reshape((n0, n1))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _f3(fb, meta, k):  # pragma: no cover (compiled)
     o, n0, n1, n2 = meta[k, 0], meta[k, 1], meta[k, 2], meta[k, 3]
     return fb[o:o + n0 * n1 * n2].reshape((n0, n1, n2))
@@ -596,6 +589,7 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
     box_e, og_c, og_r = _f2(wf, wm, 4), _f2(wf, wm, 5), _f1(wf, wm, 6)
     og_lo, og_hi, obs_c, obs_r = _f1(wi, wm, 7), _f1(wi, wm, 8), _f2(wf, wm, 9), _f1(wf, wm, 10)
     G, S, B = grp_c.shape[0], sph_c.shape[0], box_c.shape[0]
+    nil = np.int64(0)  # not the literal 0, which numba would compile _apart for once more
     proof = (in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_solid, box_c, box_R, box_h,
              box_r, depth)
     gw, sw = np.empty((G, 3)), np.empty((S, 3))
@@ -669,7 +663,9 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
                 if F0[i, j] != last[i, j]:
                     moved = True
         if moved:  # an arm on a fixed base: once per motion
-            last[:, :] = F0
+            for i in range(3):  # element by element, as in _chain
+                for j in range(4):
+                    last[i, j] = F0[i, j]
             _apply(F0, root_c, rw)
             nb = 0
             for m in cand:
@@ -718,7 +714,7 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
                 for s in range(grp_lo[g], grp_hi[g]):
                     if _sphere_box(sw[s], sph_r[s], box_c[m], box_R[m], box_h[m]):
                         if grp_hlo[g] < grp_hhi[g] and _apart(
-                                F, hull, grp_hlo[g], grp_hhi[g], F, 0, 0, box_c[m], box_R[m],
+                                F, hull, grp_hlo[g], grp_hhi[g], F, nil, nil, box_c[m], box_R[m],
                                 box_h[m], gaps[0]):
                             break
                         return steps, pos, _proved(kind, fr, *proof)
@@ -805,7 +801,7 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
                 for s in range(grp_lo[g], grp_hi[g]):
                     if _sphere_box(sw[s], sph_r[s], cw, Rw, rbox_h[b]):
                         if grp_hlo[g] < grp_hhi[g] and _apart(
-                                F, hull, grp_hlo[g], grp_hhi[g], F, 0, 0, cw, Rw, rbox_solid[b],
+                                F, hull, grp_hlo[g], grp_hhi[g], F, nil, nil, cw, Rw, rbox_solid[b],
                                 gaps[1]):
                             break
                         return steps, pos, _proved(kind, fr, *proof)

@@ -312,6 +312,8 @@ class SphereRobot:
         self.rbox_reach = np.asarray(self.root[4], float)
         if self.in_rbox is None:
             self.in_rbox = np.zeros((len(self.in_r), len(self.rbox_T)), dtype=np.bool_)
+        # 0 or 1, as :func:`collide.pack` gives it to the scan: one compiled specialization
+        self.in_rbox = np.asarray(self.in_rbox, dtype=np.int64)
         self._pack: tuple | None = None
 
     @classmethod
