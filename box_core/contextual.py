@@ -54,7 +54,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import sparse
 
 from box_core.gaussian import argmax_sequence, argmax_untried
 from box_core.prior import Prior
@@ -149,6 +148,8 @@ class NeighbourModel:
         self._mean = np.repeat((total / n)[None, :], B, axis=0)
         if own.any():
             self._mean[own] = (total - self._A[held[own]]) / (n - 1)
+        from scipy import sparse  # here: see box_core.stats on import times
+
         rows = np.repeat(np.arange(B), k)
         W = sparse.csr_matrix((self._w.ravel(), (rows, self._nb.ravel())), shape=(B, n))
         self._sums = np.asarray(W @ self._A)
@@ -212,6 +213,8 @@ class NeighbourModel:
         B = self._w.shape[0]
         indptr = np.zeros(B + 1, dtype=np.intp)
         np.cumsum(np.bincount(b, minlength=B), out=indptr[1:])
+        from scipy import sparse
+
         delta = sparse.csr_matrix((change, self._nb[b, i], indptr),
                                   shape=(B, self._A.shape[0]))
         self._sums += np.asarray(delta @ self._A)

@@ -17,8 +17,6 @@ from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
-from scipy import sparse
-from scipy.spatial.distance import cdist
 from scipy.special import ndtr
 
 from box_core import validation
@@ -404,6 +402,8 @@ class Doo(Policy):
         if not (math.isfinite(lam) and lam >= 0):
             raise ValueError(f"lam must be a finite number >= 0, got {lam!r}")
         self.lam = float(lam)
+        from scipy.spatial.distance import cdist  # here: see box_core.stats on import times
+
         self._reach = self.lam * cdist(ctx.features, ctx.features)  # lam * ||theta_i - theta_j||
         # the bounds, with tried columns at -inf (as argmax_untried masks them)
         self._bound = np.where(self.tried, -np.inf, np.inf)
@@ -645,6 +645,8 @@ class Eips(Policy):
             self._w[b, r] += change
             if self.rho == 0.0:
                 self._live[b, r] = False
+            from scipy import sparse  # here: see box_core.stats on import times
+
             delta = sparse.csr_matrix((change, (b, r)), shape=self._w.shape)
             added = delta @ self._FL
             width = self._sums.shape[1]

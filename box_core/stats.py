@@ -23,7 +23,9 @@ import math
 import warnings
 
 import numpy as np
-from scipy import stats
+
+# scipy.stats is imported by the functions that use it: importing it takes about half a
+# second, which every process importing box_core (a planning worker, the box command) paid
 
 #: Bootstrap resamples behind every interval.
 BOOTSTRAP_RESAMPLES = 2000
@@ -57,6 +59,7 @@ def mean_ci(values, level: float = 0.95) -> tuple[float, float, float]:
 
     Returns (nan, nan, nan) for no values and (mean, nan, nan) for a single value.
     """
+    from scipy import stats
     level = _checked(level)
     x = np.asarray(values, dtype=np.float64).ravel()
     x = x[~np.isnan(x)]
@@ -81,6 +84,7 @@ def mean_ci_columns(values: np.ndarray, level: float = 0.95):
     ``bootstrap((values.T,), np.mean, axis=-1)`` (tests check it) at a fiftieth of the cost,
     since the (columns x resamples x rows) array of resampled values is never formed.
     """
+    from scipy import stats
     level = _checked(level)
     x = np.asarray(values, dtype=np.float64)
     mean = x.mean(axis=0)
@@ -117,6 +121,7 @@ def ratio_interval(a: np.ndarray, b: np.ndarray, level: float = 0.95) -> tuple[f
     """The paired BCa bootstrap interval of mean(a) / mean(b) (complete, equal-length
     arrays of at least two rows), or the percentile interval of the same resamples where
     BCa is undefined."""
+    from scipy import stats
     options = _options(a.size, level, "BCa")
     with warnings.catch_warnings(), np.errstate(divide="ignore", invalid="ignore"):
         warnings.simplefilter("ignore", stats.DegenerateDataWarning)
