@@ -11,10 +11,12 @@ from pathlib import Path
 import numpy as np
 import zarr
 
-#: A small planar run: 4 x 3 blocks of 6 x 5 entries (24 x 15 = 360 planning calls).
+#: A small planar run: 4 x 3 blocks of 6 x 5 entries (24 x 15 = 360 planning calls).  No
+#: dashboard: starting Bokeh's server costs a run about 0.6 s, and what the dashboard does is
+#: tested on its own (tests/cluster/test_settings.py).
 SMALL = ("domain=planar", "instances.n=24", "constraints.m=15", "store.block_instances=6",
          "store.block_constraints=5", "progress=false", "cluster.n_workers=2",
-         "planner.max_checks=4000")
+         "planner.max_checks=4000", "cluster.dashboard_address=null")
 
 
 def command(store: Path, *overrides: str) -> list[str]:
