@@ -47,7 +47,9 @@ def test_via_point_inside_an_obstacle_is_reported(domain):
 
 def test_returned_paths_are_collision_free_when_rechecked_finer(domain):
     scene_checked = 0
-    for seed in range(8):
+    # seeds 0 and 2 are left out: their raw problems are unsolvable, and proving it spends
+    # the raw planner's whole budget (about 13 s each) without a path to recheck
+    for seed in (1, 3, 4, 5, 6, 7):
         inst = domain.sample_instance(seed)
         scene = domain.build_scene(inst)
         raw = domain.raw_plan(inst, seed=seed)
