@@ -32,14 +32,13 @@ import argparse
 import json
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-from child_runs import agreement, run_child
+from child_runs import agreement, export_revision, run_child
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGET_MS = 4.0
@@ -114,18 +113,6 @@ def entries(raw: int, instances: int, constraints: int, seed: int) -> dict:
             "warm_seeds": np.arange(first - 2, first)}
 
 
-def baseline(rev: str, into: Path) -> Path | None:
-    """The packages ``pipeline`` and ``conf`` of git revision ``rev`` under ``into``."""
-    try:
-        archive = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "pipeline", "conf"],
-                                 capture_output=True, check=True).stdout
-        subprocess.run(["tar", "-x", "-C", str(into)], input=archive, check=True)
-    except (OSError, subprocess.CalledProcessError) as exc:
-        print(f"(no baseline: git archive {rev} failed: {exc})")
-        return None
-    return into
-
-
 def run(variant: str, root: Path, collision: str, data: Path, out: Path,
         profile: bool) -> dict:
     job = {"data": str(data), "out": str(out), "collision": collision, "profile": profile}
@@ -153,7 +140,7 @@ def main() -> None:
         variants = {"new": (ROOT, "spheres"), "exact": (ROOT, "exact")}
         if args.baseline_rev:
             (tmp / "base").mkdir()
-            base = baseline(args.baseline_rev, tmp / "base")
+            base = export_revision(args.baseline_rev, tmp / "base")
             if base is not None:
                 variants["base"] = (base, "spheres")
         times = {v: [] for v in variants}

@@ -31,6 +31,21 @@ def run_child(script: str, job: dict, root: Path, label: str, profile: bool = Fa
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
+def export_revision(rev: str, into: Path, parts=("pipeline", "conf")) -> Path | None:
+    """The folders ``parts`` of git revision ``rev`` of this repository under ``into``
+    (``git archive``), or None (said why) when git cannot give them."""
+    root = Path(__file__).resolve().parents[1]
+    try:
+        archive = subprocess.run(["git", "-C", str(root), "archive", rev, *parts],
+                                 capture_output=True, check=True).stdout
+        into.mkdir(parents=True, exist_ok=True)
+        subprocess.run(["tar", "-x", "-C", str(into)], input=archive, check=True)
+    except (OSError, subprocess.CalledProcessError) as exc:
+        print(f"(no baseline: git archive {rev} failed: {exc})")
+        return None
+    return into
+
+
 def agreement(a: Path, b: Path, columns) -> np.ndarray:
     """(entries,) whether every one of ``columns`` of two saved variants agrees bit for bit
     (NaN where both are NaN, as failures' lengths are)."""
