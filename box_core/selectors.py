@@ -59,8 +59,8 @@ class FoldContext:
     and feasibility (for ``eips``); ``forbidden`` (B, m) marks columns an instance may never
     try (leave-one-out without leakage), which every policy treats as tried from the start.
     ``skip_inert=False`` makes the posterior condition on constant columns in full rather
-    than skipping the arithmetic that cannot change it (the same choices, slower; the
-    unoptimised path the tests compare against).
+    than skipping the arithmetic that cannot change it, and ``eips`` keep every column's
+    sums (the same choices, slower; the unoptimised path the tests compare against).
     """
 
     prior: FoldPriors
@@ -589,7 +589,7 @@ class Eips(Policy):
 
     def expected(self) -> tuple[np.ndarray, np.ndarray]:
         """(p, tau), each (B, m): probability of feasibility and expected time per column
-        (of the columns that are not idle only, where some are)."""
+        (of the kept columns only, where some are idle or tried by every instance)."""
         p = (self._sums + self.a * self._pbar) / (self._mass + self.a)[:, None]
         p = np.clip(p, 0.0, 1.0)
         b = self.b
@@ -604,7 +604,8 @@ class Eips(Policy):
         return argmax_untried(self.values(), self.tried, np.zeros(self.ctx.size))
 
     def values(self) -> np.ndarray:
-        """Expected gain per typical second, (B, m): what :meth:`propose` maximises."""
+        """Expected gain per typical second, (B, m): what :meth:`propose` maximises (0 at
+        the columns whose sums are not kept: idle ones, and those every instance tried)."""
         gain, tau = self.expected()
         found = np.flatnonzero(np.isfinite(self._best))
         kept = self._cols
@@ -647,7 +648,11 @@ class Eips(Policy):
                 self._live[b, r] = False
             from scipy import sparse  # here: see box_core.stats on import times
 
-            delta = sparse.csr_matrix((change, (b, r)), shape=self._w.shape)
+            # the weight changes as a CSR matrix built directly (b is sorted, r ascending
+            # within each b: the canonical layout), not through COO's conversion
+            indptr = np.zeros(self.ctx.size + 1, dtype=np.intp)
+            np.cumsum(np.bincount(b, minlength=self.ctx.size), out=indptr[1:])
+            delta = sparse.csr_matrix((change, r, indptr), shape=self._w.shape)
             added = delta @ self._FL
             width = self._sums.shape[1]
             self._sums += added[:, :width]
@@ -655,6 +660,28 @@ class Eips(Policy):
             self._lsums[1] += added[:, 2 * width:]
             self._mass += np.bincount(b, weights=change, minlength=self.ctx.size)
         self._open -= ~self._idle[cols]
+        if self.ctx.skip_inert:
+            self._narrow()
+
+    def _narrow(self) -> None:
+        """Stop keeping the sums of the columns every instance of the batch has tried
+        once they are a quarter of those kept: no later choice reads them (tried columns
+        are masked), and the sparse product of :meth:`update`, the costliest step, reads
+        every kept column of every changed row.  The other columns' sums are the same
+        numbers (each is its own column's running sum)."""
+        width = self._sums.shape[1]
+        kept = np.arange(self.ctx.m) if self._cols is None else self._cols
+        done = self.tried[:, kept].all(axis=0)
+        dropped = int(done.sum())
+        if 4 * dropped < width or dropped == width:
+            return
+        at = np.flatnonzero(~done)
+        self._cols = kept[at]
+        self._FL = np.ascontiguousarray(self._FL[:, np.concatenate(
+            [at, width + at, 2 * width + at])])
+        self._sums, self._pbar = self._sums[:, at], self._pbar[:, at]
+        self._lsums = [sums[:, at] for sums in self._lsums]
+        self._g = tuple(g[:, at] for g in self._g)
 
     def settled(self) -> np.ndarray:
         return self._open == 0  # every untried column is idle: all gains stay 0
