@@ -112,6 +112,15 @@ def test_missing_credentials_are_one_line_exit_2_and_create_nothing(s3, cwd, tmp
     assert not listing.exists(f"{BUCKET}/nocreds.zarr.lock")
 
 
+def test_a_missing_bucket_is_named_not_taken_for_a_store_in_use(s3, cwd):  # noqa: F811
+    """Creating the lease in a bucket that does not exist fails like a lost race for it
+    would (the object is "not found"); the run must say which bucket is missing."""
+    url = "s3://no-such-bucket/x.zarr"
+    line = one_line(run(pipeline(url, "stage=generate"), cwd), "s3://no-such-bucket",
+                    "no such bucket")
+    assert "in use" not in line
+
+
 # -- truncated metadata ----------------------------------------------------------------------
 def _truncated(tiny: Path, tmp_path: Path, key: str) -> Path:
     """A copy of ``tiny`` whose ``key`` is cut in half."""

@@ -37,7 +37,7 @@ import threading
 import time
 import uuid
 
-from pipeline.store.errors import LockError
+from pipeline.store.errors import LockError, StoreError
 from pipeline.store.location import Location
 
 LOCK_SUFFIX = ".lock"
@@ -197,6 +197,10 @@ class _S3Object:
             out = self.fs.call_s3("put_object", Bucket=self.bucket, Key=self.path, Body=data,
                                   **condition)
         except OSError as exc:
+            if if_match is None and isinstance(exc, FileNotFoundError):
+                # creating "where there is none" cannot miss its object: the bucket is missing
+                raise StoreError(f"s3://{self.bucket}: no such bucket ({exc}); create it "
+                                 "first, or name another one in store.path") from None
             if _is_conflict(exc):
                 raise _Conflict(str(exc)) from None
             raise
