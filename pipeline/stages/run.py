@@ -104,6 +104,9 @@ class Run:
             overwrite=self.cfg.store.mode is configs.StoreMode.overwrite)
         self._adopt(self.store.attrs.get("identity"))
         self.store.fence = lock.check
+        if lock.took_over:
+            self.say(f"[yellow]store: took over the lease of a run presumed dead "
+                     f"({lock.took_over})")
         note = metadata.repair_layout_version(self.store)
         if note:
             self.say(f"[yellow]store: {note}")

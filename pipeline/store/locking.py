@@ -274,6 +274,8 @@ class LeaseLock:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._lost: str | None = None  # why we no longer hold the lease, once we know
+        #: whose expired lease :meth:`acquire` replaced (its holder, in words), if any
+        self.took_over: str | None = None
 
     def _lease(self) -> bytes:
         return json.dumps({"owner": self.token, "host": socket.gethostname(),
@@ -330,6 +332,7 @@ class LeaseLock:
                     self._etag = self.object.put(self._lease(), if_match=etag)
                 except _Conflict:
                     continue
+                self.took_over = _describe(lease)
             self._renewed = time.monotonic()
             self._thread = threading.Thread(target=self._beat, daemon=True, name="store-lease")
             self._thread.start()
@@ -432,6 +435,13 @@ class StoreLock:
 
     def held_by_other(self) -> str | None:
         return self._impl.held_by_other()
+
+    @property
+    def took_over(self) -> str | None:
+        """Whose expired lease this lock replaced when it was taken (a run presumed dead),
+        in words; None otherwise (and always for a local store: the kernel frees the
+        lock of a process that ends)."""
+        return getattr(self._impl, "took_over", None)
 
     def __enter__(self):
         self.acquire()
