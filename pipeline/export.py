@@ -12,7 +12,8 @@ are given by name in the tabular formats, and ``box evaluate`` reads each export
   instance_feature when the store holds instance features), metadata in its attributes;
 * ``parquet``: one row per entry (instance, constraint, instance_seed, done, feasible,
   score, length, time, status, checks, step, forbidden), metadata (with the constraint
-  features) in the file's key-value metadata under ``box-planning``;
+  features, and the instance features' values) in the file's key-value metadata under
+  ``box-planning``;
 * ``csv``: a folder with the same entry table, the constraints, the instances (with their
   features, a column each) and ``metadata.json``.
 
@@ -264,6 +265,9 @@ def _write_parquet(out: Path, store, arrays, meta) -> None:
 
     table = pa.Table.from_pandas(entry_table(store, arrays, meta), preserve_index=False)
     doc = {**meta, "features": arrays["features"].tolist()}
+    if "instance_features" in arrays:  # the values too: box evaluate's contextual selectors
+        doc["instance_features"] = {**meta["instance_features"],
+                                    "values": arrays["instance_features"].tolist()}
     table = table.replace_schema_metadata({**(table.schema.metadata or {}),
                                           PARQUET_KEY: json.dumps(doc).encode()})
     pq.write_table(table, out)
@@ -340,6 +344,9 @@ def read_export(path: Path):
                 get["forbidden"] = matrix("forbidden", False, bool)
             if "checks" in frame:
                 get["checks"] = matrix("checks", 0, np.int64)
+            described = doc.get("instance_features") or {}
+            if "values" in described:
+                get["instance_features"] = np.asarray(described["values"], dtype=float)
     except Exception as exc:  # noqa: BLE001 (any unreadable file: one line)
         raise ValueError(f"{path}: cannot read as a box export ({exc})") from None
     if "scores" not in get:

@@ -229,7 +229,7 @@ def test_exports_carry_the_instance_features(made, tmp_path):
     found = stored_features(store)
     runner = CliRunner()
     for fmt, out in (("npz", tmp_path / "d.npz"), ("csv", tmp_path / "d"),
-                     ("netcdf", tmp_path / "d.nc")):
+                     ("netcdf", tmp_path / "d.nc"), ("parquet", tmp_path / "d.parquet")):
         res = runner.invoke(app, ["export", str(store), "--format", fmt, "-o", str(out)])
         assert res.exit_code == 0, res.output
     with np.load(tmp_path / "d.npz") as data:
@@ -243,6 +243,18 @@ def test_exports_carry_the_instance_features(made, tmp_path):
     with xr.open_dataset(tmp_path / "d.nc", engine="h5netcdf") as ds:
         assert list(ds["instance_feature"].values) == list(found.names)
         np.testing.assert_array_equal(ds["instance_features"].values, found.values)
+    from pipeline.export import read_export
+
+    for out in ("d.nc", "d.parquet"):
+        assert read_export(tmp_path / out)[0].instance_features.tobytes() == \
+            found.values.tobytes(), out
+    # every export box evaluate reads gives the contextual selectors the store's features
+    args = ["--selectors", "contextual", "--json", "--no-overhead"]
+    want = json.loads(runner.invoke(app, ["evaluate", str(store), *args]).output)
+    for out in ("d.npz", "d.nc", "d.parquet"):
+        res = runner.invoke(app, ["evaluate", str(tmp_path / out), *args])
+        assert res.exit_code == 0, res.output
+        assert json.loads(res.output)["selectors"] == want["selectors"], out
 
 
 def test_a_domain_without_instance_features_stores_none(tmp_path):
