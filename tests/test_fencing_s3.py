@@ -24,10 +24,10 @@ from tests.s3_server import BUCKET, done, serve
 #: run's lease expires soon.  Nothing else competes for the lease while a run holds it, so
 #: a heartbeat made late by a loaded machine costs nothing: the run renews it conditionally.
 LEASE_S = 3.0
-#: A small planar store of 2 x 2 blocks (24 blocks): a run is still writing when paused.
-SIZE = ("instances.n=12", "constraints.m=8", "store.block_instances=2",
+#: A small planar store: 12 blocks of 2 x 2 entries, so a run is still writing when paused.
+SIZE = ("instances.n=8", "constraints.m=6", "store.block_instances=2",
         "store.block_constraints=2", "cluster.n_workers=1")
-ENTRIES = 12 * 8
+ENTRIES = 8 * 6
 #: The longest wait for anything here; a wait that runs out fails, naming what it waited for.
 PATIENCE_S = 400
 
