@@ -114,6 +114,7 @@ def test_a_run_whose_lease_was_taken_over_stops_before_its_next_write(s3, tmp_pa
         b = pr.run(url, "stage=generate", *SIZE, cwd=tmp_path)  # takes the lease over
         assert b.returncode == 0, b.stdout + b.stderr
         assert "entries already done" in b.stdout and "complete" in b.stdout, b.stdout
+        assert "took over the lease of a run presumed dead (pid" in b.stdout, b.stdout
         after_b = _versions(prefix)
 
         os.killpg(a.pid, signal.SIGCONT)
@@ -169,6 +170,7 @@ def test_takers_of_one_expired_lease_never_both_get_it(s3):
         takers = [LeaseLock(locate(url)) for _ in range(3)]
         got = _race(takers)
         assert len(got) == 1, f"{len(got)} takers hold the lease"
+        assert got[0].took_over.startswith("pid 1 on elsewhere"), got[0].took_over
         got[0].check()
         for lock in takers:
             if lock is not got[0]:
@@ -181,6 +183,7 @@ def test_a_holder_presumed_dead_cannot_renew_over_its_successor(s3):
     url = f"s3://{BUCKET}/locks/renewed.zarr"
     a = LeaseLock(locate(url), lease_seconds=1.0)
     a.acquire()
+    assert a.took_over is None  # a lease where there was none
     a._stop.set()  # A's heartbeat stops (as if A were paused) ...
     a._thread.join()
     time.sleep(1.5)  # ... until its lease expires
