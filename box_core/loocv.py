@@ -162,11 +162,12 @@ def loocv(
 def _loocv(scores, *, times, feasible, selectors, k, features, seed, params, failure_rule,
            time_grid, measure_overhead, forbidden, rows=None, fast: bool = True,
            instance_features=None, checks=None, until_feasible: bool = False, workers=1,
-           only=None):
+           only=None, part=None):
     """:func:`loocv`; ``rows``: hold out only these rows (each still with the prior of
     all the others; the result's rows are these); ``fast=False``: the unoptimised path
     (every instance through every step, nothing skipped: the same result, slower);
-    ``only``: just the traces of these selectors (what a second process returns)."""
+    ``only``, ``part``: just the traces of these selectors, the tuned ones over these
+    tuning groups (what a second process returns)."""
     again = partial(_loocv, scores, times=times, feasible=feasible, selectors=selectors,
                     k=k, features=features, seed=seed, params=params,
                     failure_rule=failure_rule, time_grid=time_grid,
@@ -192,7 +193,7 @@ def _loocv(scores, *, times, feasible, selectors, k, features, seed, params, fai
     return setup.evaluate(prior.folds, outcomes, rows, seed, time_grid, measure_overhead,
                           fast=fast, train=np.arange(n), tuning=tuning,
                           until_feasible=until_feasible, workers=workers, only=only,
-                          again=again)
+                          again=again, part=part)
 
 
 def holdout(
@@ -236,8 +237,8 @@ def holdout(
 def _holdout(scores, train, test, *, times, feasible, selectors, k, features, seed, params,
              failure_rule, time_grid, measure_overhead, forbidden, fast: bool = True,
              instance_features=None, checks=None, until_feasible: bool = False, workers=1,
-             only=None):
-    """:func:`holdout`; ``fast=False`` and ``only`` as in :func:`_loocv`."""
+             only=None, part=None):
+    """:func:`holdout`; ``fast=False``, ``only`` and ``part`` as in :func:`_loocv`."""
     again = partial(_holdout, scores, train, test, times=times, feasible=feasible,
                     selectors=selectors, k=k, features=features, seed=seed, params=params,
                     failure_rule=failure_rule, time_grid=time_grid,
@@ -269,7 +270,7 @@ def _holdout(scores, train, test, *, times, feasible, selectors, k, features, se
     return setup.evaluate(lambda rows: prior.batch(rows.size), outcomes, test, seed,
                           time_grid, measure_overhead, fast=fast, train=train, tuning=tuning,
                           until_feasible=until_feasible, workers=workers, only=only,
-                          again=again)
+                          again=again, part=part)
 
 
 def _row_indices(rows, n: int, name: str) -> np.ndarray:
@@ -368,16 +369,17 @@ class _Setup:
     def evaluate(self, fold_priors, fold_outcomes, test, seed, time_grid,
                  measure, fast: bool = True, train=None, tuning=None,
                  until_feasible: bool = False, workers: int = 1, only=None,
-                 again=None) -> LoocvResult:
+                 again=None, part=None) -> LoocvResult:
         """Run every selector on the ``test`` rows; ``fold_priors(rows)`` and
         ``fold_outcomes(rows)`` give their priors and training outcomes, ``train`` the
         rows the folds train on (their instance features), ``tuning(test)`` the groups
         [(positions in ``test``, the rows to tune their settings on)].  ``fast=False``
         runs every instance through every step with no arithmetic skipped (the same
         result, up to the measured overhead; what the tests compare the fast path with).
-        ``only``: return just (traces, settings, tuning seconds) of these selectors;
-        ``workers`` >= 2: the tuned selectors' traces come from ``again(only=...)`` in a
-        second process."""
+        ``only``: return just (traces, settings, tuning seconds) of these selectors, the
+        tuned ones over the tuning groups ``part`` (indices into ``tuning(test)``; None:
+        all); ``workers`` >= 2: most of the tuned selectors' groups come from
+        ``again(only=..., part=...)`` in a second process (:func:`_shares`)."""
         D, T, feas, k = self.D[test], self.T[test], self.feas[test], self.k
         hidden = None if self.forbidden is None else self.forbidden[test]
         folds = _Folds(fold_priors, fold_outcomes, self.Dn[test], T, feas, hidden, self.theta,
@@ -388,18 +390,21 @@ class _Setup:
                        until_feasible=until_feasible)
         names = self.names if only is None else tuple(only)
         tuned = [n for n in names if issubclass(self.classes[n], Contextual)]
-        beside = tuned if workers >= 2 and again is not None and 0 < len(tuned) < len(
-            names) else []
-        with _second_process(again, beside) as theirs:
+        if part is not None:  # a second process's share
+            mine, theirs_groups = tuple(part), ()
+        else:
+            mine, theirs_groups = _shares(names, tuned, len(tuning(test)) if tuned else 0,
+                                          workers if again is not None else 1)
+        call = None if not theirs_groups else partial(again, only=tuned, part=theirs_groups)
+        with _second_process(call) as theirs:
             traces, settings, tuning_seconds = self._traces(
-                [n for n in names if n not in beside], folds, tuning, test, measure, fast)
+                names, folds, tuning, test, measure, fast, groups=mine)
             if theirs is not None:
-                for part, found in zip((traces, settings, tuning_seconds), theirs.result(),
-                                       strict=True):
-                    part.update(found)
-        traces = {n: traces[n] for n in names}  # the order selectors were given in
+                _take_rows(traces, settings, tuning_seconds, theirs.result(),
+                           np.concatenate([tuning(test)[g][0] for g in theirs_groups]))
         if only is not None:
             return traces, settings, tuning_seconds
+        traces = {n: traces[n] for n in names}  # the order selectors were given in
         if until_feasible:
             for trace in traces.values():
                 _end_at_first_feasible(trace)
@@ -442,18 +447,21 @@ class _Setup:
             result.best_score[name] = _best_by_time(totals[name], scores, grid, self.d)
         return result
 
-    def _traces(self, names, folds, tuning, test, measure, fast):
-        """(traces, settings, tuning seconds) of the selectors ``names``."""
+    def _traces(self, names, folds, tuning, test, measure, fast, groups=None):
+        """(traces, settings, tuning seconds) of the selectors ``names``, the tuned ones
+        over the tuning ``groups`` only (None: all; the trace's other rows are padding)."""
         run = _run_fast if fast else _run
         traces, settings, tuning_seconds = {}, {}, {}
-        groups, memo = None, {}  # memo: what selectors tuned alike share, per group
+        chosen, memo = None, {}  # memo: what selectors tuned alike share, per group
         for name in names:
             cls = self.classes[name]
             params = dict(self.params.get(name, {}))
             if issubclass(cls, Contextual):
-                groups = tuning(test) if groups is None else groups
+                if chosen is None:
+                    every = tuning(test)
+                    chosen = every if groups is None else [every[g] for g in groups]
                 traces[name], settings[name], tuning_seconds[name] = self._tuned(
-                    cls, params, folds, groups, measure, run, memo)
+                    cls, params, folds, chosen, measure, run, memo)
             else:
                 order, overhead = run(cls, params, folds, measure)
                 traces[name] = _uncapped(order, overhead, folds.T, folds.feas)
@@ -489,7 +497,7 @@ class _Setup:
             part = folds.restrict(positions)
             parts.append((positions, _uncapped(*run(cls, kwargs, part, measure), part.T,
                                                part.feas)))
-        width = max(tr.order.shape[1] for _, tr in parts)
+        width = max((tr.order.shape[1] for _, tr in parts), default=0)
         out = TryTrace(order=np.full((B, width), -1, dtype=np.intp),
                        allowance=np.zeros((B, width)), cost=np.zeros((B, width)),
                        outcome=np.full((B, width), -1, dtype=np.int8),
@@ -501,16 +509,60 @@ class _Setup:
         return out, chosen, tuning_seconds
 
 
+def _shares(names, tuned, groups: int, workers: int) -> tuple[tuple, tuple]:
+    """(this process's, the second process's) tuning groups of the tuned selectors.
+
+    With one worker, or no tuned selector, this process takes them all.  Otherwise the
+    second process takes most of them and this one the rest beside the other selectors:
+    a fifth of the groups where there are others (on the main job's 1000 x 162 the
+    others take about 0.6 of the tuned ones' time, so both end together), half where the
+    tuned ones are all.  Every row's result is the same wherever it is computed."""
+    every = tuple(range(groups))
+    alone = len(tuned) == len(names)
+    mine = groups // (2 if alone else 5)
+    if workers < 2 or not tuned or (alone and not mine):
+        return every, ()
+    return every[groups - mine:], every[:groups - mine]
+
+
+def _take_rows(traces, settings, tuning_seconds, found, rows) -> None:
+    """Merge the second process's (traces, settings, tuning seconds) ``found`` of the
+    held-out positions ``rows`` into this process's (which hold padding there)."""
+    theirs, their_settings, their_seconds = found
+    for name, tr in theirs.items():
+        mine = traces[name]
+        width = max(mine.order.shape[1], tr.order.shape[1])
+        merged = _padded(mine, width)
+        for key in ("order", "allowance", "cost", "outcome", "overhead"):
+            getattr(merged, key)[rows, :tr.order.shape[1]] = getattr(tr, key)[rows]
+        traces[name] = merged
+        for key, values in their_settings[name].items():
+            settings[name].setdefault(key, np.full_like(values, np.nan))[rows] = values[rows]
+        tuning_seconds[name] = tuning_seconds.get(name, 0.0) + their_seconds[name]
+
+
+def _padded(trace: TryTrace, width: int) -> TryTrace:
+    """``trace`` widened to ``width`` tries with padding (-1 / 0 / -1)."""
+    B, w = trace.order.shape
+    pads = {"order": -1, "allowance": 0.0, "cost": 0.0, "outcome": -1, "overhead": 0.0}
+    out = {}
+    for key, pad in pads.items():
+        values = getattr(trace, key)
+        out[key] = np.full((B, width), pad, dtype=values.dtype)
+        out[key][:, :w] = values
+    return TryTrace(**out)
+
+
 @contextlib.contextmanager
-def _second_process(again, names):
-    """A handle whose ``result()`` is ``again(only=names)`` computed by a second Python
-    process (None when ``names`` is empty).
+def _second_process(call):
+    """A handle whose ``result()`` is ``call()`` computed by a second Python process (None
+    when ``call`` is None).
 
     The child is a fresh interpreter running :func:`_serve` (``python -c``), given this
     process's ``sys.path`` and the pickled call on its stdin: unlike multiprocessing's
     spawn it never imports the caller's main script, so a script without an
     ``if __name__ == "__main__"`` guard, or code piped to ``python -``, works as well."""
-    if not names:
+    if call is None:
         yield None
         return
     child = subprocess.Popen([sys.executable, "-c", "from box_core.loocv import _serve; _serve()"],
@@ -519,7 +571,7 @@ def _second_process(again, names):
                                  p for p in sys.path if p)})
     try:
         with child.stdin:
-            pickle.dump((again, tuple(names)), child.stdin)
+            pickle.dump(call, child.stdin)
         yield _ChildResult(child)
     finally:
         if child.poll() is None:
@@ -548,9 +600,9 @@ class _ChildResult:
 def _serve() -> None:
     """The second process of :func:`_second_process`: one call from stdin, its result (or
     the exception it raised) to stdout."""
-    again, names = pickle.load(sys.stdin.buffer)
+    call = pickle.load(sys.stdin.buffer)
     try:
-        reply = (True, again(only=names))
+        reply = (True, call())
     except Exception as exc:  # the caller raises it
         reply = (False, exc)
     pickle.dump(reply, sys.stdout.buffer)
