@@ -11,6 +11,7 @@ from distributed import Client
 
 from pipeline.cluster import worker_side
 from pipeline.cluster.checks import check_config
+from pipeline.cluster.dashboard import no_dashboard
 from pipeline.cluster.errors import ClusterError, ClusterFailed
 from pipeline.cluster.slurm import JobKeeper, available_cores, start_slurm_cluster
 from pipeline.cluster.watchdog import Watchdog
@@ -54,7 +55,8 @@ def _start(cfg, say):
         tune_workers()
         cluster = LocalCluster(n_workers=cfg.n_workers or available_cores(),
                                threads_per_worker=1, processes=True, host=cfg.host,
-                               dashboard_address=cfg.dashboard_address)
+                               dashboard_address=cfg.dashboard_address,
+                               scheduler_kwargs=no_dashboard(cfg))
         return cluster, ClusterClient(cluster), None, ""
     if cfg.kind is ClusterKind.address:
         try:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from dask.utils import format_bytes, parse_bytes
 
+from pipeline.cluster.dashboard import no_dashboard
 from pipeline.cluster.errors import ClusterError
 
 
@@ -53,10 +54,10 @@ def start_slurm_cluster(cfg, n_workers: int):
     logs.mkdir(parents=True, exist_ok=True)
     memory = format_bytes(parse_bytes(s.memory_per_worker) * s.cores)
     if s.interface:
-        scheduler = {"interface": s.interface}
+        scheduler = {"interface": s.interface, "dashboard_address": cfg.dashboard_address}
     else:
-        scheduler = {"host": cfg.host}
-    scheduler["dashboard_address"] = cfg.dashboard_address
+        scheduler = {"host": cfg.host, "dashboard_address": cfg.dashboard_address,
+                     **no_dashboard(cfg)}
     cluster = SLURMCluster(
         queue=s.queue, account=s.account, cores=s.cores, processes=s.cores, memory=memory,
         walltime=s.walltime, interface=s.interface, job_extra_directives=s.job_extra_directives,

@@ -84,3 +84,47 @@ def test_the_dashboard_link_printed_opens_dask_s_dashboard():
             status, html = page.status, page.read().decode()
     assert status == 200
     assert "bokeh" in html.lower() and "needs bokeh" not in html.lower()
+
+
+def test_no_dashboard_means_none_and_no_port_8787(recwarn):
+    """``dashboard_address=null``: no dashboard, and the HTTP server every Dask scheduler
+    starts listens on a free loopback port, so a port 8787 that something else holds
+    gives no warning (Dask's default would try 8787 and warn, which a run prints on
+    stderr)."""
+    import socket
+
+    holder = socket.socket()
+    try:
+        holder.bind(("127.0.0.1", 8787))
+        holder.listen()
+    except OSError:
+        holder.close()
+        holder = None  # held already, by something else: the same situation
+    try:
+        out = io.StringIO()
+        with connect(ClusterConfig(n_workers=1, dashboard_address=None),
+                     Console(file=out, width=200)) as client:
+            port = client.scheduler_info()["services"]["dashboard"]  # the HTTP server's
+            status = _status_code(f"http://127.0.0.1:{port}/status")
+            me = psutil.Process()
+            hosts = _listening(me)
+            for child in me.children(recursive=True):
+                hosts |= _listening(child)
+    finally:
+        if holder is not None:
+            holder.close()
+    assert status == 404 and port != 8787  # no dashboard page there
+    assert "dashboard" not in out.getvalue()
+    assert hosts == {"127.0.0.1"}
+    assert not [w for w in recwarn if "8787" in str(w.message)]  # Dask's port warning
+
+
+def _status_code(url: str) -> int:
+    import urllib.error
+    import urllib.request
+
+    try:
+        with urllib.request.urlopen(url, timeout=30) as page:  # noqa: S310 (loopback)
+            return page.status
+    except urllib.error.HTTPError as exc:
+        return exc.code
