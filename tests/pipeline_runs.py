@@ -56,6 +56,15 @@ def finish(proc: subprocess.Popen, limit_s: float = 600) -> str:
                              f"stacks:\n{out}") from None
 
 
+def worker_processes(pid: int) -> list:
+    """The Dask worker processes of the run ``pid``: the forks of its fork server
+    (``pipeline.cluster.forked_workers``)."""
+    import psutil
+
+    return [p for p in psutil.Process(pid).children(recursive=True)
+            if "forkserver" in " ".join(p.parent().cmdline())]
+
+
 def _default_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 

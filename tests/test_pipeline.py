@@ -8,7 +8,6 @@ import signal
 import time
 
 import numpy as np
-import psutil
 import pytest
 import xarray as xr
 
@@ -141,6 +140,8 @@ def test_ctrl_c_stops_cleanly_and_resumes(reference, tmp_path):
 
 
 def test_a_killed_worker_is_replaced_and_its_block_retried(reference, tmp_path):
+    """The workers are forks of one server that imported the run's domain and planner,
+    with the environment a spawned worker gets; killing one mid-run loses nothing."""
     _, _, D = reference
     store = tmp_path / "worker.zarr"
     proc = pr.start(store, "stage=generate")
@@ -148,9 +149,17 @@ def test_a_killed_worker_is_replaced_and_its_block_retried(reference, tmp_path):
     while pr.done_count(store) == 0:
         assert proc.poll() is None and time.monotonic() < deadline
         time.sleep(0.05)
-    workers = [p for p in psutil.Process(proc.pid).children(recursive=True)
-               if "dask" in " ".join(p.cmdline()) or "spawn" in " ".join(p.cmdline())]
-    assert workers, "no worker processes found"
+    workers = pr.worker_processes(proc.pid)
+    assert len(workers) == 2, "no worker processes found"
+    server = workers[0].parent()
+    assert {w.parent().pid for w in workers} == {server.pid}
+    assert server.parent().pid == proc.pid
+    preloaded = " ".join(server.cmdline())
+    assert "pipeline.domains.planar" in preloaded and "pipeline.planning.rrt_connect" in preloaded
+    for worker in workers:
+        env = worker.environ()
+        assert env["OPENBLAS_NUM_THREADS"] == env["OMP_NUM_THREADS"] == "1"
+        assert env["PYTHONHASHSEED"] == "6640" and "MALLOC_TRIM_THRESHOLD_" not in env
     workers[-1].kill()
     output, _ = proc.communicate(timeout=300)
     assert proc.returncode == 0, output

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 
 import cloudpickle
 from distributed import Client
@@ -13,6 +13,7 @@ from pipeline.cluster import worker_side
 from pipeline.cluster.checks import check_config
 from pipeline.cluster.dashboard import no_dashboard
 from pipeline.cluster.errors import ClusterError, ClusterFailed
+from pipeline.cluster.forked_workers import use_forked_workers
 from pipeline.cluster.slurm import JobKeeper, available_cores, start_slurm_cluster
 from pipeline.cluster.watchdog import Watchdog
 from pipeline.configs import ClusterKind
@@ -47,12 +48,13 @@ def tune_workers() -> None:
     dask.config.set({"distributed.nanny.pre-spawn-environ": environ, **worker_side.TUNED_CONFIG})
 
 
-def _start(cfg, say):
+def _start(cfg, say, preload: Sequence[str]):
     """(cluster or None, client, keeper or None, hint for the watchdog's message)."""
     if cfg.kind is ClusterKind.local:
         from distributed import LocalCluster
 
         tune_workers()
+        use_forked_workers(preload)
         cluster = LocalCluster(n_workers=cfg.n_workers or available_cores(),
                                threads_per_worker=1, processes=True, host=cfg.host,
                                dashboard_address=cfg.dashboard_address,
@@ -99,11 +101,13 @@ _KEPT: dict[str, ClusterClient] = {}
 
 
 @contextlib.contextmanager
-def connect(cfg, console) -> Iterator[ClusterClient]:
+def connect(cfg, console, preload: Sequence[str] = ()) -> Iterator[ClusterClient]:
     """The run's client, connected (or its cluster started) and checked: at least one
     worker, every worker able to import this package at the same version, workers tuned.
     Raises ClusterError (bad settings, no scheduler: nothing was written) or ClusterFailed.
-    Closed on exit, unless ``cluster.reuse`` keeps it for the next run in this process."""
+    Closed on exit, unless ``cluster.reuse`` keeps it for the next run in this process.
+    ``preload``: modules a LocalCluster's workers import before they start
+    (:mod:`pipeline.cluster.forked_workers`)."""
 
     def say(text: str) -> None:
         console.print(text, highlight=False)
@@ -119,7 +123,7 @@ def connect(cfg, console) -> Iterator[ClusterClient]:
         say(f"dask: reusing {_describe(cfg, client, len(client.watchdog.known))}")
         yield client
         return
-    cluster, client, keeper, hint = _start(cfg, say)
+    cluster, client, keeper, hint = _start(cfg, say, preload)
     try:
         if cfg.kind is not ClusterKind.local:
             cloudpickle.register_pickle_by_value(worker_side)

@@ -42,6 +42,12 @@ def planner_class(name: str):
     return load(settings_class(name).planner_class)
 
 
+def planner_module(name: str) -> str:
+    """The module that holds planner ``name``'s Planner class (it is not imported)."""
+    target = PLANNERS[name] if name in PLANNERS else settings_class(name).planner_class
+    return target.split(":")[0]
+
+
 def settings_class(name: str) -> type[PlannerSettings]:
     """The settings class (schema) of planner ``name``, without importing the planner: a
     built-in's from :data:`SETTINGS`, a plug-in's from its entry point."""
@@ -74,4 +80,4 @@ def make_planner(settings: PlannerSettings, robot):
 
 
 __all__ = ["COLLISION", "PLANNERS", "PlannerSettings", "make_planner",
-           "planner_class", "planners", "plans_nothing", "settings_class"]
+           "planner_class", "planner_module", "planners", "plans_nothing", "settings_class"]

@@ -19,6 +19,7 @@ from pipeline import configs, environment, validation
 from pipeline.context import StageContext
 from pipeline.domains import load_domain
 from pipeline.execution import Task, dask_client, run_tasks
+from pipeline.planning.registry import planner_module
 from pipeline.planning.settings import planner_label
 from pipeline.provenance import Provenance
 from pipeline.stages.todo import TODO
@@ -141,8 +142,13 @@ class Run:
     @property
     def client(self):
         if self._client is None:
-            self._client = self._stack.enter_context(dask_client(self.cfg.cluster, self.console))
+            self._client = self._stack.enter_context(
+                dask_client(self.cfg.cluster, self.console, preload=self.worker_modules()))
         return self._client
+
+    def worker_modules(self) -> tuple[str, ...]:
+        """The modules this run's tasks import: its domain's and its planner's."""
+        return (type(self.domain).__module__, planner_module(self.domain.planner.name))
 
     def close(self) -> None:
         self._stack.close()
