@@ -150,26 +150,41 @@ def test_feasible_paths_recheck_free_and_checks_stay_in_budget(domain, planner):
 
 
 PROCESS_CODE = """
-import json, sys
+import json, sys, traceback
 import numpy as np
 from pipeline.domains import load_domain
-d = load_domain(sys.argv[1], planner={"name": sys.argv[2], "wall_cap_s": 1e6})
-out = []
-for spec, row, seed in json.loads(sys.argv[3]):
-    r = d.plan(spec, np.asarray(row, float), seed=seed)
-    out.append([int(r.status), r.checks, r.step, repr(r.score), r.path.tobytes().hex()])
+out = {}
+for domain, planner, sent in json.loads(sys.stdin.read()):
+    try:
+        d = load_domain(domain, planner={"name": planner, "wall_cap_s": 1e6})
+        out[f"{domain}/{planner}"] = [
+            [int(r.status), r.checks, r.step, repr(r.score), r.path.tobytes().hex()]
+            for r in (d.plan(spec, np.asarray(row, float), seed=seed) for spec, row, seed in sent)]
+    except Exception:
+        out[f"{domain}/{planner}"] = traceback.format_exc()
 print(json.dumps(out))
 """
 
 
-def in_child(domain: str, planner: str, env: dict[str, str]) -> list[list]:
-    """The checked calls planned in a fresh process with ``env`` set (and nothing this
-    process's environment picked up, such as a Dask nanny's OPENBLAS_NUM_THREADS=1)."""
-    sent = [(spec, [float(v) for v in row], s) for spec, row, s in calls(domain)]
-    out = subprocess.run([sys.executable, "-c", PROCESS_CODE, domain, planner,
-                          json.dumps(sent)], capture_output=True, text=True, check=True,
-                         env=child_env(env))
+@functools.cache
+def in_child(env: tuple[tuple[str, str], ...]) -> dict[str, list | str]:
+    """The checked calls of every pair the registry accepts, planned pair after pair in one
+    fresh process with ``env`` set (and nothing this process's environment picked up, such
+    as a Dask nanny's OPENBLAS_NUM_THREADS=1): "domain/planner" -> their summaries, or the
+    child's traceback for that pair.  One process for all pairs: each would otherwise pay
+    the interpreter's start and imports (about 1.5 s) for two planning calls."""
+    sent = [(domain, planner, [(spec, [float(v) for v in row], s)
+                               for spec, row, s in calls(domain)])
+            for domain, planner in PAIRS if make(domain, planner) is not None]
+    out = subprocess.run([sys.executable, "-c", PROCESS_CODE], input=json.dumps(sent),
+                         capture_output=True, text=True, check=True, env=child_env(dict(env)))
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def child_summaries(domain: str, planner: str, env: dict[str, str]) -> list[list]:
+    found = in_child(tuple(sorted(env.items())))[f"{domain}/{planner}"]
+    assert not isinstance(found, str), found  # the child's traceback
+    return found
 
 
 @pytest.mark.parametrize("threads", ["1", "2"])
@@ -178,7 +193,7 @@ def test_plans_are_identical_in_another_process(domain, planner, threads):
     """Bitwise, in a process with one BLAS thread (a Dask worker) or two (a notebook)."""
     domain_or_skip(domain, planner)
     here = [list(summary(r)) for r in planned(domain, planner)]
-    assert in_child(domain, planner, {"OPENBLAS_NUM_THREADS": threads}) == here
+    assert child_summaries(domain, planner, {"OPENBLAS_NUM_THREADS": threads}) == here
 
 
 @pytest.mark.parametrize("domain,planner", PAIRS)
@@ -192,7 +207,7 @@ def test_plans_keep_the_contract_on_other_cpu_code_paths(domain, planner):
         pytest.skip("no other CPU code path can be forced on this machine")
     name, env = forced[-1]  # all of them together where this machine can (test_replay: each)
     here = [summary(r) for r in planned(domain, planner)]
-    for a, b in zip(here, in_child(domain, planner, env), strict=True):
+    for a, b in zip(here, child_summaries(domain, planner, env), strict=True):
         assert list(a[:3]) == b[:3], name
         assert agree(float(a[3]), float(b[3])), name
         assert agree(*(np.frombuffer(bytes.fromhex(x[4])) for x in (a, b))), name
