@@ -16,7 +16,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import scipy.io
 
 #: The names each array is looked for under when the caller names none: the project's own
 #: names first (``box export`` writes ``times``, a store holds ``scores/time``), then
@@ -149,6 +148,8 @@ def _mat_child(path: str, send) -> None:
     faulthandler.disable()  # a crash is reported by the parent in one line
     os.dup2(os.open(os.devnull, os.O_WRONLY), 2)
     try:
+        import scipy.io  # here, in the child: every `box` command would pay its import
+
         found = {k: np.asarray(v) for k, v in scipy.io.loadmat(path).items()
                  if not k.startswith("__")}
         plain = {k: (v if v.dtype.kind in "biuf" else v.dtype.str) for k, v in found.items()}

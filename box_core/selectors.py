@@ -17,7 +17,6 @@ from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
-from scipy.special import ndtr
 
 from box_core import validation
 from box_core.gaussian import (
@@ -610,6 +609,8 @@ class Eips(Policy):
         found = np.flatnonzero(np.isfinite(self._best))
         kept = self._cols
         if found.size:
+            from scipy.special import ndtr  # here: see box_core.stats on import times
+
             post = self.posterior
             at = found if kept is None else np.ix_(found, kept)
             std = np.sqrt(np.maximum(post.var[at], 0.0))

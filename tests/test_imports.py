@@ -13,10 +13,18 @@ import pytest
 HEAVY = ("ompl", "pybullet")
 
 
+#: scipy's subpackages that take 0.1-0.3 s each to import: box_core and the entry points
+#: import them in the functions that use them (issue 27: every coordinator, every `box`
+#: command and every test that runs one pays what these modules import)
+SLOW_SCIPY = ("scipy.special", "scipy.stats", "scipy.sparse", "scipy.io", "scipy.spatial")
+
+
+WATCHED = ("ompl", "pybullet", "matplotlib.pyplot", "pipeline.domains.grasp_arm", *SLOW_SCIPY)
+
+
 def loaded_after(code: str) -> dict:
     probe = (f"import sys, json\n{code}\n"
-             "print(json.dumps({m: m in sys.modules for m in "
-             "('ompl', 'pybullet', 'matplotlib.pyplot', 'pipeline.domains.grasp_arm')}))")
+             f"print(json.dumps({{m: m in sys.modules for m in {WATCHED}}}))")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
                          check=True).stdout
     return json.loads(out.strip().splitlines()[-1])
@@ -29,6 +37,12 @@ def loaded_after(code: str) -> dict:
 def test_light_modules_load_neither_ompl_nor_pybullet(module):
     loaded = loaded_after(f"import {module}")
     assert not any(loaded[m] for m in HEAVY), loaded
+
+
+@pytest.mark.parametrize("module", ["box_core", "pipeline.cli", "pipeline.stages"])
+def test_box_core_and_the_entry_points_load_no_slow_scipy_subpackage(module):
+    loaded = loaded_after(f"import {module}")
+    assert not any(loaded[m] for m in SLOW_SCIPY), loaded
 
 
 def test_registering_the_pipeline_configs_loads_no_domain():
