@@ -42,8 +42,12 @@ def worker_environment() -> dict[str, str]:
 def use_forked_workers(modules: Iterable[str] = ()) -> None:
     """Make this process's nannies fork their workers from a server that imported
     ALWAYS and ``modules`` (module names; one that cannot be imported is skipped there and
-    imported by the worker as usual).  Call before the LocalCluster starts."""
+    imported by the worker as usual).  Call before the LocalCluster starts.  Where the
+    platform has no fork server (Windows), workers are spawned as Dask does by default."""
     import dask
+
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return
 
     dask.config.set({"distributed.worker.multiprocessing-method": "forkserver"})
     os.environ.update(worker_environment())
