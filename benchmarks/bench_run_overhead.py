@@ -76,11 +76,11 @@ def main() -> None:
             measure(root, RUNS["3 x 1 entries"], Path(tmp) / f"warm-{len(label)}.zarr")
         print(f"{'run':18s} {'variant':14s} {'wall s':>8s} {'CPU-s':>8s}   (medians of "
               f"{args.repeats})")
-        for name, overrides in RUNS.items():
+        for r, (name, overrides) in enumerate(RUNS.items()):
             found = {label: [] for label in variants}
             for k in range(args.repeats):
                 for i, (label, root) in enumerate(variants.items()):
-                    found[label].append(measure(root, overrides, Path(tmp) / f"s{k}-{i}.zarr"))
+                    found[label].append(measure(root, overrides, Path(tmp) / f"s{r}-{k}-{i}.zarr"))
             medians = {label: (statistics.median(w for w, _ in v),
                                statistics.median(c for _, c in v)) for label, v in found.items()}
             for label, (wall, cpu) in medians.items():

@@ -9,7 +9,8 @@ the chunks of the evaluation's two time-dependent arrays (``first_feasible_time`
 ``best_score``): a selector's time includes its measured compute time (box_core.loocv's
 ``overhead``), which differs from run to run; their documents are compared.
 Status and the re-runs run in this process (the re-runs need no workers: nothing is
-planned), so the whole campaign takes about a minute.
+planned), on one working copy of the store that each edit leaves equal to the reference
+again (copied afresh only where an edit left it different).
 """
 
 from __future__ import annotations
@@ -175,15 +176,22 @@ def rerun(cfg) -> str | None:
     return None
 
 
+def fresh_copy(store: Path, copy: Path) -> None:
+    shutil.rmtree(copy)
+    shutil.copytree(store, copy)
+
+
 def test_every_metadata_edit_is_named_then_repaired_or_refused(campaign_store, tmp_path):
     store, cfg = campaign_store
     reference = snapshot(store)
     counts = {"edits": 0, "named": 0, "repaired": 0, "refused": 0}
     failures, refused = [], []
+    copy = tmp_path / "copy.zarr"
+    shutil.copytree(store, copy)
     for name, token, rel, edited in edits(store):
-        copy = tmp_path / "copy.zarr"
-        shutil.rmtree(copy, ignore_errors=True)
-        shutil.copytree(store, copy)
+        # every edit starts from a copy equal to the reference (checked below, after each
+        # edit): a repaired copy is the reference again, a refused one gets its edited
+        # document back, and only a copy left different is copied afresh
         _save(copy / rel, edited)
         counts["edits"] += 1
         try:
@@ -193,6 +201,7 @@ def test_every_metadata_edit_is_named_then_repaired_or_refused(campaign_store, t
             said = str(exc)
         if token not in said:
             failures.append(f"{name}: status does not name it: {said!r}")
+            fresh_copy(store, copy)
             continue
         counts["named"] += 1
         damaged = snapshot(copy)
@@ -204,13 +213,18 @@ def test_every_metadata_edit_is_named_then_repaired_or_refused(campaign_store, t
         if refusal is not None:
             if "\n" in refusal or snapshot(copy) != damaged:
                 failures.append(f"{name}: refused in more than one line or changed the store")
+                fresh_copy(store, copy)
             else:
                 counts["refused"] += 1
                 refused.append(f"{name}: {refusal}")
+                shutil.copyfile(store / rel, copy / rel)  # the reference again
+                assert snapshot(copy) == reference
             continue
-        if snapshot(copy) != reference:
-            diff = [k for k in reference if snapshot(copy).get(k) != reference[k]]
+        after = snapshot(copy)
+        if after != reference:
+            diff = [k for k in reference if after.get(k) != reference[k]]
             failures.append(f"{name}: re-run left the store different ({diff[:4]})")
+            fresh_copy(store, copy)
             continue
         counts["repaired"] += 1
     print(f"\nmetadata campaign: {counts}\nrefused:\n" + "\n".join(refused))
