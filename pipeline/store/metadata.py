@@ -214,6 +214,11 @@ def _consolidated(store: ScoreStore) -> list[Difference]:
 def check(store: ScoreStore, domain) -> list[Difference]:
     """Every metadata difference of ``store`` (of the current layout; an older one is
     checked for its version only, and migrated by the next run)."""
+    with store.documents_read_once():
+        return _check(store, domain)
+
+
+def _check(store: ScoreStore, domain) -> list[Difference]:
     found = _root(store)
     if any(d.action == REFUSE and "layout_version" in d.what for d in found) \
             or store.layout_version < LAYOUT_VERSION:
@@ -223,10 +228,12 @@ def check(store: ScoreStore, domain) -> list[Difference]:
     stages = store.attrs.get("stages") or {}
     groups = [g for g in layout.GROUPS if store.has_group(g)
               and (g in ("raw", "scores") or g in stages)]
-    found += _compare(store, layout.expected(store.attrs, domain, groups), REWRITE)
-    integrity_doc = {"attributes": {"root": _recorded_root(store)}, "zarr_format": 3,
-                     "node_type": "group"}
-    if _recorded_root(store) is not None:
+    expected = layout.expected(store.attrs, domain, groups)
+    store.read_documents(expected)
+    found += _compare(store, expected, REWRITE)
+    recorded = _recorded_root(store)
+    integrity_doc = {"attributes": {"root": recorded}, "zarr_format": 3, "node_type": "group"}
+    if recorded is not None:
         found += _compare(store, {integrity.GROUP: integrity_doc}, REWRITE)
     found += _evaluation(store)
     if not any(d.node == "" and "unreadable" in d.what for d in found):

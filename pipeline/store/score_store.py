@@ -16,6 +16,7 @@ computed the block (``pipeline/environment.py``; -1: computed before layout 3).
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import errno
 import json
@@ -130,6 +131,9 @@ def check_is_ours(path) -> None:
 
 class ScoreStore(Readers, BlockWrites, Verification):
     """A store; open it with :meth:`open` (read) or :meth:`prepare` (a run)."""
+
+    #: documents read once (:meth:`documents_read_once`): raw bytes by key, None: not in one
+    _doc_memo: dict[str, bytes | None] | None = None
 
     def __init__(self, location, read_only: bool = False):
         self.location = locate(location)
@@ -326,9 +330,16 @@ class ScoreStore(Readers, BlockWrites, Verification):
         """The parsed ``zarr.json`` of node ``path`` ("" for the root) as stored, without
         the consolidated copy of the others (KeyError when there is none, ValueError when
         it is not a JSON object)."""
-        raw = self.read_bytes(_doc_key(path))
+        memo = self._doc_memo
+        key = _doc_key(path)
+        if memo is None:
+            raw = self.read_bytes(key)
+        else:
+            if key not in memo:
+                memo[key] = self.read_bytes(key)
+            raw = memo[key]
         if raw is None:
-            raise KeyError(_doc_key(path))
+            raise KeyError(key)
         doc = json.loads(raw)
         if not isinstance(doc, dict):
             raise ValueError(f"{_doc_key(path)} holds no JSON object")
@@ -344,6 +355,37 @@ class ScoreStore(Readers, BlockWrites, Verification):
 
         return {k[:-len("zarr.json")].rstrip("/"): self.document(k[:-len("zarr.json")].rstrip("/"))
                 for k in sync(keys())}
+
+    @contextlib.contextmanager
+    def documents_read_once(self):
+        """Within the block, :meth:`document` reads each node's ``zarr.json`` once (a check
+        compares most documents twice: with the layout and with their consolidated copy).
+        Nothing may be written within the block."""
+        self._doc_memo = {}
+        try:
+            yield
+        finally:
+            self._doc_memo = None
+
+    def read_documents(self, paths) -> None:
+        """Within :meth:`documents_read_once`, read the documents of nodes ``paths`` not
+        read yet, concurrently (on object storage each read is a round trip); outside it,
+        nothing (each is read when asked for)."""
+        import asyncio
+
+        from zarr.core.buffer import default_buffer_prototype
+        from zarr.core.sync import sync
+
+        if self._doc_memo is None:
+            return
+        keys = [k for k in dict.fromkeys(_doc_key(p) for p in paths) if k not in self._doc_memo]
+        prototype = default_buffer_prototype()
+
+        async def read_all():
+            return await asyncio.gather(*(self.zstore.get(k, prototype=prototype)
+                                          for k in keys))
+        for key, buf in zip(keys, sync(read_all()) if keys else [], strict=True):
+            self._doc_memo[key] = None if buf is None else buf.to_bytes()
 
     def read_bytes(self, key: str) -> bytes | None:
         from zarr.core.buffer import default_buffer_prototype

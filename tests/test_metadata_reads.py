@@ -1,0 +1,72 @@
+"""The metadata check reads each ``zarr.json`` once (on object storage every read is a round
+trip), and finds the same differences as a check that reads every document every time."""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import json
+import shutil
+
+import zarr.storage
+
+from pipeline.domains import load_domain
+from pipeline.store import metadata
+from pipeline.store.score_store import ScoreStore
+
+
+class CountingStore(zarr.storage.WrapperStore):
+    """A store that counts the reads of each key (it changes nothing)."""
+
+    def __init__(self, store):
+        super().__init__(store)
+        self.reads = collections.Counter()
+
+    async def get(self, key, prototype, byte_range=None):
+        self.reads[key] += 1
+        return await self._store.get(key, prototype, byte_range)
+
+
+def _counted(path) -> tuple[ScoreStore, CountingStore]:
+    store = ScoreStore(path, read_only=True)
+    store.zstore = counting = CountingStore(store.zstore)
+    return store, counting
+
+
+def _reading_every_time(store: ScoreStore, monkeypatch):
+    """The check as it was: every document read wherever it is compared."""
+    monkeypatch.setattr(ScoreStore, "documents_read_once",
+                        contextlib.contextmanager(lambda self: (yield)))
+    try:
+        return metadata.check(store, load_domain("planar"))
+    finally:
+        monkeypatch.undo()
+
+
+def test_a_check_reads_each_document_once(made, monkeypatch):
+    store, counting = _counted(made[0])
+    assert metadata.check(store, load_domain("planar")) == []
+    documents = {k: n for k, n in counting.reads.items() if k.endswith("zarr.json")}
+    assert len(documents) > 20  # every array's and group's document
+    assert max(documents.values()) == 1, {k: n for k, n in documents.items() if n > 1}
+
+    store, counting = _counted(made[0])
+    assert _reading_every_time(store, monkeypatch) == []
+    assert max(counting.reads.values()) >= 2  # what the memo saves: compared twice
+
+
+def test_a_damaged_store_shows_the_same_differences_either_way(made, tmp_path, monkeypatch):
+    copy = tmp_path / "copy.zarr"
+    shutil.copytree(made[0], copy)
+    doc_path = copy / "scores" / "status" / "zarr.json"
+    doc = json.loads(doc_path.read_text())
+    doc["attributes"]["flag_meanings"] = "edited"
+    doc_path.write_text(json.dumps(doc))
+    found = metadata.check(ScoreStore(copy, read_only=True), load_domain("planar"))
+    assert any(d.node == "scores/status" for d in found)
+    assert any("consolidated copy of scores/status" in d.what for d in found)
+    assert found == _reading_every_time(ScoreStore(copy, read_only=True), monkeypatch)
+    # the memo lasts one check: a document written after it is read afresh
+    store = ScoreStore(copy, read_only=True)
+    metadata.check(store, load_domain("planar"))
+    assert store._doc_memo is None
