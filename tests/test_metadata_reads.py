@@ -70,3 +70,7 @@ def test_a_damaged_store_shows_the_same_differences_either_way(made, tmp_path, m
     store = ScoreStore(copy, read_only=True)
     metadata.check(store, load_domain("planar"))
     assert store._doc_memo is None
+    with store.documents_read_once():  # a check within a block is part of that block
+        metadata.check(store, load_domain("planar"))
+        assert store._doc_memo
+    assert store._doc_memo is None

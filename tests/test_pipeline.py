@@ -150,7 +150,7 @@ def test_a_killed_worker_is_replaced_and_its_block_retried(reference, tmp_path):
         assert proc.poll() is None and time.monotonic() < deadline
         time.sleep(0.05)
     workers = pr.worker_processes(proc.pid)
-    assert len(workers) == 2, "no worker processes found"
+    assert len(workers) == 2, f"expected the 2 workers, found {workers}"
     server = workers[0].parent()
     assert {w.parent().pid for w in workers} == {server.pid}
     assert server.parent().pid == proc.pid

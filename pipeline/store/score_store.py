@@ -342,7 +342,7 @@ class ScoreStore(Readers, BlockWrites, Verification):
             raise KeyError(key)
         doc = json.loads(raw)
         if not isinstance(doc, dict):
-            raise ValueError(f"{_doc_key(path)} holds no JSON object")
+            raise ValueError(f"{key} holds no JSON object")
         doc.pop("consolidated_metadata", None)
         return doc
 
@@ -360,7 +360,10 @@ class ScoreStore(Readers, BlockWrites, Verification):
     def documents_read_once(self):
         """Within the block, :meth:`document` reads each node's ``zarr.json`` once (a check
         compares most documents twice: with the layout and with their consolidated copy).
-        Nothing may be written within the block."""
+        Nothing may be written within the block; a block within another is part of it."""
+        if self._doc_memo is not None:
+            yield
+            return
         self._doc_memo = {}
         try:
             yield
