@@ -3,6 +3,8 @@ for code that builds a domain or planner without Hydra (tests, workers, ``box``)
 
 from __future__ import annotations
 
+import copy
+import json
 from pathlib import Path
 
 from omegaconf import OmegaConf
@@ -20,13 +22,12 @@ def load_yaml_config(group: str, name: str, schema: type, overrides: dict | None
     that has no YAML) the schema's defaults with ``overrides``."""
     path = CONF_DIR / group / f"{name}.yaml"
     if path.is_file():
-        raw = OmegaConf.load(path)
-        raw.pop("defaults", None)
+        text = path.read_text()
     elif required:
         raise ValueError(f"no {group} config {name!r}: {path} does not exist")
     else:
-        raw = None
-    return load_structured(group, name, schema, overrides, raw)
+        text = None
+    return _merged(group, name, schema, overrides, text)
 
 
 def load_structured(group: str, name: str, schema: type, overrides: dict | None = None,
@@ -39,6 +40,30 @@ def load_structured(group: str, name: str, schema: type, overrides: dict | None 
         return OmegaConf.to_object(node)
     except OmegaConfBaseException as exc:
         raise ValueError(f"{group} config {name!r}: {exc}".splitlines()[0]) from None
+
+
+#: merged configs by (group, name, schema, YAML text, overrides as JSON): OmegaConf takes
+#: some 20 ms to merge one, and a run, its checks and ``box`` ask for the same ones often
+_MERGED: dict[tuple, object] = {}
+
+
+def _merged(group: str, name: str, schema: type, overrides: dict | None, text: str | None):
+    """:func:`load_structured` of a YAML file's ``text`` (None: no file), remembered per
+    process; each caller gets its own copy."""
+    try:
+        key = (group, name, schema, text, json.dumps(overrides, sort_keys=True))
+    except TypeError:  # values JSON cannot hold: merged every time
+        key = None
+    if key is None or key not in _MERGED:
+        raw = None
+        if text is not None:
+            raw = OmegaConf.create(text)
+            raw.pop("defaults", None)
+        merged = load_structured(group, name, schema, overrides, raw)
+        if key is None:
+            return merged
+        _MERGED[key] = merged
+    return copy.deepcopy(_MERGED[key])
 
 
 def planner_settings(planner=None) -> PlannerSettings:

@@ -253,10 +253,13 @@ class ScoreStore(Readers, BlockWrites, Verification):
 
     # -- arrays ----------------------------------------------------------------------------
     def has(self, key: str) -> bool:
+        """Whether ``key`` is an array (opened and kept, as by :meth:`array`: checks and
+        reads that follow ask for the array they tested)."""
         try:
-            return isinstance(self.root[key], zarr.Array)
+            self.array(key)
         except KeyError:
             return False
+        return True
 
     def has_group(self, key: str) -> bool:
         try:
