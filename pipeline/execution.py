@@ -73,6 +73,20 @@ def run_tasks(client, tasks: list[Task], on_done: Callable[[Task, dict], None], 
                          "Finished blocks are saved; re-run to retry the rest.")
 
 
+def result_watched(future, watchdog):
+    """``future.result()``, checking the cluster while it waits.  A block can finish, then
+    lose its worker before its result is gathered: Dask computes it again, which needs a
+    worker, so with none left an unwatched ``result()`` waits forever (seen when every
+    worker was killed while a result was being fetched)."""
+    while True:
+        try:
+            return future.result(timeout=POLL_S)
+        except TimeoutError:
+            if future.status == "error":  # the task's own TimeoutError
+                raise
+            watchdog.check()
+
+
 def _consume(pending: set, by_key, on_done, failures: list, watchdog, label: str,
              count: EntryCount, shown: EntryProgress) -> None:
     """Hand each finished future's result to ``on_done``; ``pending`` shrinks in place.
@@ -88,7 +102,9 @@ def _consume(pending: set, by_key, on_done, failures: list, watchdog, label: str
         for future in finished:
             task = by_key[future.key]
             try:
-                result = future.result()
+                result = result_watched(future, watchdog)
+            except ClusterFailed:
+                raise
             except Exception as exc:  # noqa: BLE001 (reported below, others go on)
                 if _cannot_import(exc):
                     raise ClusterFailed(f"{label} block {task.block} failed on a worker "

@@ -1,16 +1,22 @@
 """How the store's checks read what they verify (pipeline/store/verification.py): a small
 array (an integrity table, a ``done`` mask) whole, chunk by chunk only when one does not
 decode, so one damaged chunk is still told apart from the others; the chunks whose digests
-are checked, together."""
+are checked, together; and a store opened for reading reads each document once
+(pipeline/store/documents_once.py)."""
 
 from __future__ import annotations
 
+import collections
 import shutil
 
 import numpy as np
 import zarr
 
+from pipeline.domains import load_domain
+from pipeline.store import metadata
+from pipeline.store.documents_once import DocumentsReadOnce
 from pipeline.store.layout import CODECS
+from pipeline.store.location import Location
 from pipeline.store.score_store import ScoreStore
 from pipeline.store.verification import chunk_values
 
@@ -53,3 +59,40 @@ def test_one_damaged_row_of_an_integrity_table_is_that_block_only(made, tmp_path
     assert damage.corrupted == {"integrity/scores": {(1, 1)}, "scores/score": {(0, 2)}}
     assert not damage.missing
     assert sorted(store.finished_blocks("scores")) == sorted(set(finished) - {(1, 1)})
+
+
+class CountingStore(zarr.storage.WrapperStore):
+    """A store that counts the reads of each key (it changes nothing)."""
+
+    def __init__(self, store):
+        super().__init__(store)
+        self.reads = collections.Counter()
+
+    async def get(self, key, prototype, byte_range=None):
+        self.reads[key] += 1
+        return await self._store.get(key, prototype, byte_range)
+
+
+def test_a_store_opened_for_reading_reads_each_document_once(made, monkeypatch):
+    counting = []
+    zarr_store = Location.zarr_store
+
+    def counted(self, read_only):
+        counting.append(CountingStore(zarr_store(self, read_only)))
+        return counting[-1]
+
+    monkeypatch.setattr(Location, "zarr_store", counted)
+    store = ScoreStore(made[0], read_only=True)
+    assert metadata.check(store, load_domain("planar")) == []
+    for group in ("instances", "raw", "constraints", "scores"):
+        assert not store.verify(group)
+        for key in store.arrays_under(group):
+            store.array(key)
+    store.array("scores/score")[...]
+    store.array("scores/score")[...]
+    reads = counting[0].reads
+    documents = {k: n for k, n in reads.items() if k.endswith("zarr.json")}
+    assert len(documents) > 20 and max(documents.values()) == 1, documents
+    assert reads["scores/score/c/0/0"] == 3  # chunks are read each time: verified, then twice
+    # a store opened for writing changes its documents: each is read when it is opened
+    assert not isinstance(ScoreStore(made[0], read_only=False).zstore, DocumentsReadOnce)

@@ -29,6 +29,7 @@ import numpy as np
 import zarr
 
 from pipeline.store.blocks import BlockWrites
+from pipeline.store.documents_once import DocumentsReadOnce
 from pipeline.store.errors import StoreError
 from pipeline.store.layout import (
     BLOCK_DIMS,
@@ -140,6 +141,8 @@ class ScoreStore(Readers, BlockWrites, Verification):
         self.path = self.location.path
         self.read_only = read_only
         self.zstore = self.location.zarr_store(read_only=read_only)
+        if read_only:  # one consistent set of documents, one request each
+            self.zstore = DocumentsReadOnce(self.zstore)
         self.root = zarr.open_group(store=self.zstore, mode="r" if read_only else "r+",
                                     use_consolidated=False)
         self._arrays: dict[str, zarr.Array] = {}

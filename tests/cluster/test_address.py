@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import operator
 import re
 import shutil
+import threading
 import time
 from pathlib import Path
 
-from distributed import Client
+from distributed import Client, wait
 
-from pipeline.cluster import worker_side
+from pipeline.cluster import ClusterFailed, worker_side
+from pipeline.cluster.watchdog import Watchdog
+from pipeline.execution import result_watched
 from tests import pipeline_runs as pr
 from tests.cluster.conftest import kill
 
@@ -120,6 +124,35 @@ def test_all_workers_killed_watchdog_stops_the_run(tmp_path, dask_procs):
     assert "no Dask worker connected for 3 s (cluster.worker_timeout)" in out
     assert "re-run the same command to resume" in out
     assert pr.done_count(store) > 0  # finished blocks kept
+
+
+def test_a_result_lost_with_its_last_worker_stops_the_wait(dask_procs):
+    """The race behind a run that hung once in CI: a block finished, then every worker was
+    killed before its result was fetched.  Dask computes it again, which needs a worker;
+    the wait for it must end with the watchdog's ClusterFailed, not go on forever."""
+    address = dask_procs.scheduler()
+    worker = dask_procs.worker()
+    dask_procs.wait_for_workers(1)
+    with Client(address, timeout="30s") as client:
+        future = client.submit(operator.add, 1, 2, key="lost-block")
+        wait([future])  # finished: its result lives on the worker only
+        kill(worker)
+        watchdog = Watchdog(client, timeout=2.0, digest=worker_side.code_digest(),
+                            say=lambda text: None)
+        outcome = []
+
+        def fetch():
+            try:
+                outcome.append(result_watched(future, watchdog))
+            except BaseException as exc:  # noqa: BLE001 (what ended the wait)
+                outcome.append(exc)
+
+        waiting = threading.Thread(target=fetch, daemon=True)
+        waiting.start()
+        waiting.join(300)  # a guard against a hang (the watchdog needs a few seconds)
+        assert not waiting.is_alive(), "the wait for a lost result never ended"
+        assert isinstance(outcome[0], ClusterFailed), outcome
+        assert "no Dask worker connected for 2 s" in str(outcome[0])
 
 
 def test_worker_without_the_package_is_named(tmp_path, dask_procs):
