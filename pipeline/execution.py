@@ -73,18 +73,22 @@ def run_tasks(client, tasks: list[Task], on_done: Callable[[Task, dict], None], 
                          "Finished blocks are saved; re-run to retry the rest.")
 
 
-def result_watched(future, watchdog):
+def result_watched(future, watchdog, longest_wait_s: float = 60.0):
     """``future.result()``, checking the cluster while it waits.  A block can finish, then
     lose its worker before its result is gathered: Dask computes it again, which needs a
     worker, so with none left an unwatched ``result()`` waits forever (seen when every
-    worker was killed while a result was being fetched)."""
+    worker was killed while a result was being fetched).  A fetch that outlasts a wait is
+    started again, so each wait is twice the last (up to ``longest_wait_s``): a large
+    result on a slow link still arrives."""
+    wait_s = POLL_S
     while True:
         try:
-            return future.result(timeout=POLL_S)
+            return future.result(timeout=wait_s)
         except TimeoutError:
             if future.status == "error":  # the task's own TimeoutError
                 raise
             watchdog.check()
+            wait_s = min(2 * wait_s, longest_wait_s)
 
 
 def _consume(pending: set, by_key, on_done, failures: list, watchdog, label: str,
