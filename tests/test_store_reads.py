@@ -6,7 +6,6 @@ are checked, together; and a store opened for reading reads each document once
 
 from __future__ import annotations
 
-import collections
 import shutil
 
 import numpy as np
@@ -19,6 +18,7 @@ from pipeline.store.layout import CODECS
 from pipeline.store.location import Location
 from pipeline.store.score_store import ScoreStore
 from pipeline.store.verification import chunk_values
+from tests.test_metadata_reads import CountingStore
 
 
 def _flip(path):
@@ -59,18 +59,6 @@ def test_one_damaged_row_of_an_integrity_table_is_that_block_only(made, tmp_path
     assert damage.corrupted == {"integrity/scores": {(1, 1)}, "scores/score": {(0, 2)}}
     assert not damage.missing
     assert sorted(store.finished_blocks("scores")) == sorted(set(finished) - {(1, 1)})
-
-
-class CountingStore(zarr.storage.WrapperStore):
-    """A store that counts the reads of each key (it changes nothing)."""
-
-    def __init__(self, store):
-        super().__init__(store)
-        self.reads = collections.Counter()
-
-    async def get(self, key, prototype, byte_range=None):
-        self.reads[key] += 1
-        return await self._store.get(key, prototype, byte_range)
 
 
 def test_a_store_opened_for_reading_reads_each_document_once(made, monkeypatch):
