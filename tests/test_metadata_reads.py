@@ -12,6 +12,7 @@ import zarr.storage
 
 from pipeline.domains import load_domain
 from pipeline.store import metadata
+from pipeline.store.location import Location
 from pipeline.store.score_store import ScoreStore
 
 
@@ -27,30 +28,44 @@ class CountingStore(zarr.storage.WrapperStore):
         return await self._store.get(key, prototype, byte_range)
 
 
-def _counted(path) -> tuple[ScoreStore, CountingStore]:
-    store = ScoreStore(path, read_only=True)
-    store.zstore = counting = CountingStore(store.zstore)
-    return store, counting
+def counting_reads(monkeypatch) -> list[CountingStore]:
+    """From now on every store a ScoreStore opens counts the reads that reach it (below
+    any document cache); the list holds them in the order they were opened."""
+    counting = []
+    zarr_store = Location.zarr_store
+
+    def counted(self, read_only):
+        counting.append(CountingStore(zarr_store(self, read_only)))
+        return counting[-1]
+
+    monkeypatch.setattr(Location, "zarr_store", counted)
+    return counting
+
+
+def _counted(path, monkeypatch) -> tuple[ScoreStore, CountingStore]:
+    """A store opened for writing (it remembers documents only within a check's block),
+    and the reads that reach its storage from now on (opening it read the root)."""
+    counting = counting_reads(monkeypatch)
+    store = ScoreStore(path, read_only=False)
+    counting[-1].reads.clear()
+    return store, counting[-1]
 
 
 def _reading_every_time(store: ScoreStore, monkeypatch):
     """The check as it was: every document read wherever it is compared."""
-    monkeypatch.setattr(ScoreStore, "documents_read_once",
-                        contextlib.contextmanager(lambda self: (yield)))
-    try:
+    with monkeypatch.context() as patched:
+        patched.setattr(ScoreStore, "documents_read_once", lambda self: contextlib.nullcontext())
         return metadata.check(store, load_domain("planar"))
-    finally:
-        monkeypatch.undo()
 
 
 def test_a_check_reads_each_document_once(made, monkeypatch):
-    store, counting = _counted(made[0])
+    store, counting = _counted(made[0], monkeypatch)
     assert metadata.check(store, load_domain("planar")) == []
     documents = {k: n for k, n in counting.reads.items() if k.endswith("zarr.json")}
     assert len(documents) > 20  # every array's and group's document
     assert max(documents.values()) == 1, {k: n for k, n in documents.items() if n > 1}
 
-    store, counting = _counted(made[0])
+    store, counting = _counted(made[0], monkeypatch)
     assert _reading_every_time(store, monkeypatch) == []
     assert max(counting.reads.values()) >= 2  # what the memo saves: compared twice
 
@@ -62,15 +77,17 @@ def test_a_damaged_store_shows_the_same_differences_either_way(made, tmp_path, m
     doc = json.loads(doc_path.read_text())
     doc["attributes"]["flag_meanings"] = "edited"
     doc_path.write_text(json.dumps(doc))
-    found = metadata.check(ScoreStore(copy, read_only=True), load_domain("planar"))
+    found = metadata.check(ScoreStore(copy, read_only=False), load_domain("planar"))
     assert any(d.node == "scores/status" for d in found)
     assert any("consolidated copy of scores/status" in d.what for d in found)
-    assert found == _reading_every_time(ScoreStore(copy, read_only=True), monkeypatch)
-    # the memo lasts one check: a document written after it is read afresh
-    store = ScoreStore(copy, read_only=True)
+    assert found == _reading_every_time(ScoreStore(copy, read_only=False), monkeypatch)
+    # a store opened for writing remembers documents for one check only: a document
+    # written after it is read afresh
+    store = ScoreStore(copy, read_only=False)
     metadata.check(store, load_domain("planar"))
-    assert store._doc_memo is None
+    assert not store.zstore.remembers
     with store.documents_read_once():  # a check within a block is part of that block
         metadata.check(store, load_domain("planar"))
-        assert store._doc_memo
-    assert store._doc_memo is None
+        assert store.zstore.remembers
+    assert not store.zstore.remembers
+    assert ScoreStore(copy, read_only=True).zstore.remembers  # read-only: always

@@ -13,12 +13,10 @@ import zarr
 
 from pipeline.domains import load_domain
 from pipeline.store import metadata
-from pipeline.store.documents_once import DocumentsReadOnce
 from pipeline.store.layout import CODECS
-from pipeline.store.location import Location
 from pipeline.store.score_store import ScoreStore
 from pipeline.store.verification import chunk_values
-from tests.test_metadata_reads import CountingStore
+from tests.test_metadata_reads import counting_reads
 
 
 def _flip(path):
@@ -62,14 +60,7 @@ def test_one_damaged_row_of_an_integrity_table_is_that_block_only(made, tmp_path
 
 
 def test_a_store_opened_for_reading_reads_each_document_once(made, monkeypatch):
-    counting = []
-    zarr_store = Location.zarr_store
-
-    def counted(self, read_only):
-        counting.append(CountingStore(zarr_store(self, read_only)))
-        return counting[-1]
-
-    monkeypatch.setattr(Location, "zarr_store", counted)
+    counting = counting_reads(monkeypatch)
     store = ScoreStore(made[0], read_only=True)
     assert metadata.check(store, load_domain("planar")) == []
     for group in ("instances", "raw", "constraints", "scores"):
@@ -83,4 +74,4 @@ def test_a_store_opened_for_reading_reads_each_document_once(made, monkeypatch):
     assert len(documents) > 20 and max(documents.values()) == 1, documents
     assert reads["scores/score/c/0/0"] == 3  # chunks are read each time: verified, then twice
     # a store opened for writing changes its documents: each is read when it is opened
-    assert not isinstance(ScoreStore(made[0], read_only=False).zstore, DocumentsReadOnce)
+    assert not ScoreStore(made[0], read_only=False).zstore.remembers

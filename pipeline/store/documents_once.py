@@ -1,33 +1,56 @@
-"""A read-only store's view that reads each node's metadata document (``zarr.json``) at most
-once.
+"""A store's view that can read each node's metadata document (``zarr.json``) at most once.
 
-Opening a store for reading (``box status``, readers, a run's look before it writes) reads
-most documents several times: the metadata check compares them, Zarr reads each again when
-the node is opened, and a group's listing reads its children's.  In object storage each of
-those reads is a round trip.  A :class:`pipeline.store.ScoreStore` opened read-only already
-sees its root and the arrays it opened as they were when first read (Zarr's objects keep
-their metadata); this view extends that to every document, so a reader sees one consistent
-set of documents and makes one request per document.  Chunks are always read from the store.
+Opening and checking a store reads most documents several times: the metadata check
+compares them (with the layout and with their consolidated copy), Zarr reads each again
+when the node is opened, and a group's listing reads its children's.  In object storage each
+of those reads is a round trip.  While the view remembers, each document (or its absence) is
+read once and nothing may be written.  A :class:`pipeline.store.ScoreStore` opened read-only
+remembers for its whole life: it already sees its root and the arrays it opened as they
+were when first read (Zarr's objects keep their metadata), and this extends that to every
+document, one consistent set.  A store opened for writing remembers only within
+:meth:`DocumentsReadOnce.remembering` (a metadata check).  Chunks are always read.
 """
 
 from __future__ import annotations
+
+import contextlib
 
 import zarr.storage
 
 
 class DocumentsReadOnce(zarr.storage.WrapperStore):
-    """Wraps a read-only store: each ``zarr.json`` (or its absence) is read once."""
+    """Wraps a store; ``always``: remember every document read, for the view's whole life."""
 
-    def __init__(self, store) -> None:
+    def __init__(self, store, always: bool = False) -> None:
         super().__init__(store)
-        self._documents: dict[str, object] = {}
+        self._always = always
+        self._documents: dict[str, object] | None = {} if always else None
 
     def _with_store(self, store) -> DocumentsReadOnce:
-        return type(self)(store)
+        return type(self)(store, self._always)
+
+    @property
+    def remembers(self) -> bool:
+        return self._documents is not None
+
+    @contextlib.contextmanager
+    def remembering(self):
+        """Within the block each document is read once; nothing may be written in it.  A
+        block within another, or on a view that always remembers, is part of it."""
+        if self._documents is not None:
+            yield
+            return
+        self._documents = {}
+        try:
+            yield
+        finally:
+            self._documents = None
 
     async def get(self, key, prototype, byte_range=None):
-        if byte_range is not None or not (key == "zarr.json" or key.endswith("/zarr.json")):
+        documents = self._documents
+        if documents is None or byte_range is not None \
+                or not (key == "zarr.json" or key.endswith("/zarr.json")):
             return await self._store.get(key, prototype, byte_range)
-        if key not in self._documents:
-            self._documents[key] = await self._store.get(key, prototype)
-        return self._documents[key]
+        if key not in documents:
+            documents[key] = await self._store.get(key, prototype)
+        return documents[key]

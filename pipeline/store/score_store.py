@@ -16,7 +16,6 @@ computed the block (``pipeline/environment.py``; -1: computed before layout 3).
 
 from __future__ import annotations
 
-import contextlib
 import datetime as _dt
 import errno
 import json
@@ -133,16 +132,13 @@ def check_is_ours(path) -> None:
 class ScoreStore(Readers, BlockWrites, Verification):
     """A store; open it with :meth:`open` (read) or :meth:`prepare` (a run)."""
 
-    #: documents read once (:meth:`documents_read_once`): raw bytes by key, None: not in one
-    _doc_memo: dict[str, bytes | None] | None = None
-
     def __init__(self, location, read_only: bool = False):
         self.location = locate(location)
         self.path = self.location.path
         self.read_only = read_only
-        self.zstore = self.location.zarr_store(read_only=read_only)
-        if read_only:  # one consistent set of documents, one request each
-            self.zstore = DocumentsReadOnce(self.zstore)
+        # read-only: one consistent set of documents, one request each
+        self.zstore = DocumentsReadOnce(self.location.zarr_store(read_only=read_only),
+                                        always=read_only)
         self.root = zarr.open_group(store=self.zstore, mode="r" if read_only else "r+",
                                     use_consolidated=False)
         self._arrays: dict[str, zarr.Array] = {}
@@ -158,7 +154,7 @@ class ScoreStore(Readers, BlockWrites, Verification):
         :mod:`pipeline.store.layout` creates to know the documents a store must hold."""
         self = cls.__new__(cls)
         self.location, self.path, self.read_only = None, "(the expected layout)", False
-        self.zstore = zarr.storage.MemoryStore()
+        self.zstore = DocumentsReadOnce(zarr.storage.MemoryStore())
         self.root = zarr.open_group(store=self.zstore, mode="w", use_consolidated=False)
         self._arrays, self.fence, self.metadata_only = {}, lambda: None, True
         return self
@@ -336,14 +332,8 @@ class ScoreStore(Readers, BlockWrites, Verification):
         """The parsed ``zarr.json`` of node ``path`` ("" for the root) as stored, without
         the consolidated copy of the others (KeyError when there is none, ValueError when
         it is not a JSON object)."""
-        memo = self._doc_memo
         key = _doc_key(path)
-        if memo is None:
-            raw = self.read_bytes(key)
-        else:
-            if key not in memo:
-                memo[key] = self.read_bytes(key)
-            raw = memo[key]
+        raw = self.read_bytes(key)
         if raw is None:
             raise KeyError(key)
         doc = json.loads(raw)
@@ -362,39 +352,30 @@ class ScoreStore(Readers, BlockWrites, Verification):
         return {k[:-len("zarr.json")].rstrip("/"): self.document(k[:-len("zarr.json")].rstrip("/"))
                 for k in sync(keys())}
 
-    @contextlib.contextmanager
     def documents_read_once(self):
-        """Within the block, :meth:`document` reads each node's ``zarr.json`` once (a check
-        compares most documents twice: with the layout and with their consolidated copy).
-        Nothing may be written within the block; a block within another is part of it."""
-        if self._doc_memo is not None:
-            yield
-            return
-        self._doc_memo = {}
-        try:
-            yield
-        finally:
-            self._doc_memo = None
+        """A block within which each node's ``zarr.json`` is read once (a check compares
+        most documents twice: with the layout and with their consolidated copy).  Nothing
+        may be written within it; a store opened read-only reads each once anyway
+        (:mod:`pipeline.store.documents_once`)."""
+        return self.zstore.remembering()
 
     def read_documents(self, paths) -> None:
-        """Within :meth:`documents_read_once`, read the documents of nodes ``paths`` not
-        read yet, concurrently (on object storage each read is a round trip); outside it,
-        nothing (each is read when asked for)."""
+        """Where documents are read once, read those of nodes ``paths`` concurrently (on
+        object storage each read is a round trip); elsewhere nothing (each is read when
+        asked for)."""
         import asyncio
 
         from zarr.core.buffer import default_buffer_prototype
         from zarr.core.sync import sync
 
-        if self._doc_memo is None:
+        if not self.zstore.remembers:
             return
-        keys = [k for k in dict.fromkeys(_doc_key(p) for p in paths) if k not in self._doc_memo]
         prototype = default_buffer_prototype()
 
         async def read_all():
-            return await asyncio.gather(*(self.zstore.get(k, prototype=prototype)
-                                          for k in keys))
-        for key, buf in zip(keys, sync(read_all()) if keys else [], strict=True):
-            self._doc_memo[key] = None if buf is None else buf.to_bytes()
+            await asyncio.gather(*(self.zstore.get(k, prototype=prototype)
+                                   for k in dict.fromkeys(_doc_key(p) for p in paths)))
+        sync(read_all())
 
     def read_bytes(self, key: str) -> bytes | None:
         from zarr.core.buffer import default_buffer_prototype
