@@ -134,10 +134,10 @@ def _write_stages(run: Run, names) -> None:
                 run.say(f"{name}: already complete; nothing to do")
                 continue
             STAGES[name](run)
-            if run.wrote:
-                run.store.consolidate()
+            run.store.consolidate()  # if this stage changed a metadata document
         if run.wrote:
-            run.store.set_attrs(config=run.recorded_config())  # the latest settings
+            if run.store.attrs.get("config") != run.recorded_config():
+                run.store.set_attrs(config=run.recorded_config())  # the latest settings
             run.store.consolidate()
     except OSError as exc:
         raise write_error(run.location, exc) from None

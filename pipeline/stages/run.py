@@ -67,6 +67,9 @@ class Run:
         self.store: ScoreStore | None = None
         self.writing = False
         self.wrote = False
+        #: check_is_ours passed on this run's store (open_for_reading): the check before
+        #: the lock is not made again (prepare() checks once more, under the lock)
+        self._checked_ours = False
         self._todo: dict[str, str | None] = {}
         self._stack = contextlib.ExitStack()
         self._client = None
@@ -82,8 +85,8 @@ class Run:
                             "wait for it or stop it first")
         if self.location.is_empty():
             return None
-        check_is_ours(self.location)
-        store = ScoreStore(self.location, read_only=True)
+        store = ScoreStore.checked(self.location)
+        self._checked_ours = True
         self._adopt(store.attrs.get("identity"))
         if store.attrs.get("identity") != self.identity:
             return None  # prepare() refuses it, or replaces it with store.mode=overwrite
@@ -96,7 +99,8 @@ class Run:
             return self.store
         if self.location.local is not None:
             local = self.location.local
-            if local.exists() and (not local.is_dir() or any(local.iterdir())):
+            if not self._checked_ours and local.exists() and (
+                    not local.is_dir() or any(local.iterdir())):
                 check_is_ours(self.location)  # refuse before touching anything near it
             local.parent.mkdir(parents=True, exist_ok=True)
         lock = self._stack.enter_context(StoreLock(self.location))

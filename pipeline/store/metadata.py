@@ -326,5 +326,5 @@ def repair(store: ScoreStore, domain, found: list[Difference]) -> list[str]:
     if any(d.action == RECONSOLIDATE for d in found):
         notes.append("consolidated metadata written again (it differed from the documents)")
     store.record_root()
-    store.consolidate()
+    store.consolidate(force=any(d.action == RECONSOLIDATE for d in found))
     return notes

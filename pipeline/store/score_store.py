@@ -88,21 +88,25 @@ def write_error(location, exc: OSError) -> StoreError:
                       "it and re-run the same command to resume")
 
 
-def _root_attrs(location: Location) -> dict:
-    """The root attributes of the Zarr group at ``location``: a storage failure raises a
-    StoreError, a missing or unreadable root document what Zarr raises."""
+def _root_attrs(location: Location, zstore=None) -> dict:
+    """The root attributes of the Zarr group at ``location`` (read through ``zstore`` when
+    given): a storage failure raises a StoreError, a missing or unreadable root document
+    what Zarr raises."""
     from pipeline.store.storage_errors import translated
 
+    if zstore is None:
+        zstore = location.zarr_store(read_only=True)
     with translated(location):
-        return dict(zarr.open_group(store=location.zarr_store(read_only=True), mode="r",
-                                    use_consolidated=False).attrs)
+        return dict(zarr.open_group(store=zstore, mode="r", use_consolidated=False).attrs)
 
 
-def check_is_ours(path) -> None:
+def check_is_ours(path, zstore=None) -> None:
     """StoreError (one line) unless ``path`` holds a store of ours whose every ``zarr.json``
     can be read (:func:`pipeline.store.storage_errors.check_metadata`).  A root document that
     cannot be read, or says another format, beside the groups of a score store is named
-    as such: the store is ours, damaged (or not ours, but it is left untouched either way)."""
+    as such: the store is ours, damaged (or not ours, but it is left untouched either way).
+    ``zstore``: the Zarr store to read it through (a read-only :class:`DocumentsReadOnce`
+    view then keeps the documents it checked for the store object that reads them next)."""
     from pipeline.store.storage_errors import check_metadata, has_nodes, metadata_error
 
     location = locate(path)
@@ -112,7 +116,7 @@ def check_is_ours(path) -> None:
     if not location.exists():
         raise StoreError(f"no store at {location}")
     try:
-        attrs, unreadable = _root_attrs(location), None
+        attrs, unreadable = _root_attrs(location, zstore), None
     except StoreError:
         raise
     except Exception as exc:  # noqa: BLE001 (Zarr raises many types for a bad root)
@@ -126,22 +130,24 @@ def check_is_ours(path) -> None:
                              "groups of a score store; left untouched")
         raise StoreError(f"{location} is not a score store made by this pipeline; "
                          "left untouched")
-    check_metadata(location)
+    check_metadata(location, zstore)
 
 
 class ScoreStore(Readers, BlockWrites, Verification):
     """A store; open it with :meth:`open` (read) or :meth:`prepare` (a run)."""
 
-    def __init__(self, location, read_only: bool = False):
+    def __init__(self, location, read_only: bool = False,
+                 zstore: DocumentsReadOnce | None = None):
         self.location = locate(location)
         self.path = self.location.path
         self.read_only = read_only
         # read-only: one consistent set of documents, one request each
-        self.zstore = DocumentsReadOnce(self.location.zarr_store(read_only=read_only),
-                                        always=read_only)
+        self.zstore = zstore if zstore is not None else DocumentsReadOnce(
+            self.location.zarr_store(read_only=read_only), always=read_only)
         self.root = zarr.open_group(store=self.zstore, mode="r" if read_only else "r+",
                                     use_consolidated=False)
         self._arrays: dict[str, zarr.Array] = {}
+        self._consolidated_at = self.zstore.document_changes
         #: called before every write (blocks, records, attributes, arrays, documents): the
         #: run's lock check (fencing)
         self.fence = lambda: None
@@ -157,6 +163,7 @@ class ScoreStore(Readers, BlockWrites, Verification):
         self.zstore = DocumentsReadOnce(zarr.storage.MemoryStore())
         self.root = zarr.open_group(store=self.zstore, mode="w", use_consolidated=False)
         self._arrays, self.fence, self.metadata_only = {}, lambda: None, True
+        self._consolidated_at = 0
         return self
 
     # -- opening ---------------------------------------------------------------------------
@@ -165,13 +172,24 @@ class ScoreStore(Readers, BlockWrites, Verification):
         """An existing store of ours (for evaluation, export, reports).  ``checked``: its
         metadata documents are checked first (StoreDamaged naming each difference), so a
         reader never allocates what a damaged document claims (status checks them itself)."""
-        check_is_ours(path)
-        store = cls(path, read_only=read_only)
+        store = cls.checked(path) if read_only else None
+        if store is None:
+            check_is_ours(path)
+            store = cls(path, read_only=False)
         if checked:
             from pipeline.store import metadata
 
             metadata.refuse(store)
         return store
+
+    @classmethod
+    def checked(cls, path) -> ScoreStore:
+        """The store at ``path`` opened read-only once :func:`check_is_ours` has passed,
+        seeing the very documents that check read (each read once)."""
+        location = locate(path)
+        zstore = DocumentsReadOnce(location.zarr_store(read_only=True), always=True)
+        check_is_ours(location, zstore)
+        return cls(location, read_only=True, zstore=zstore)
 
     @classmethod
     def prepare(cls, path, identity: dict, config: dict, overwrite: bool) -> ScoreStore:
@@ -397,12 +415,18 @@ class ScoreStore(Readers, BlockWrites, Verification):
         self.root = zarr.open_group(store=self.zstore, mode="r" if self.read_only else "r+",
                                     use_consolidated=False)
 
-    def consolidate(self) -> None:
-        """Consolidated metadata for readers (xarray); only between runs' stages."""
+    def consolidate(self, force: bool = False) -> None:
+        """Consolidated metadata for readers (xarray); only between runs' stages, and only
+        when a metadata document was written or removed through this store object since it
+        last consolidated (or was opened), or when ``force``d (a copy found stale):
+        chunks are not part of the consolidated copy."""
+        if not force and self.zstore.document_changes == self._consolidated_at:
+            return
         self.fence()
         with warnings.catch_warnings():  # "not part of the v3 spec yet": known, intended
             warnings.filterwarnings("ignore", message=".*[Cc]onsolidated metadata.*")
             zarr.consolidate_metadata(self.zstore)
+        self._consolidated_at = self.zstore.document_changes
 
 
 def _doc_key(path: str) -> str:

@@ -160,16 +160,18 @@ def has_nodes(location, names) -> bool:
         return any(sync(zstore.exists(f"{name}/zarr.json")) for name in names)
 
 
-def check_metadata(location) -> None:
+def check_metadata(location, zstore=None) -> None:
     """Read every ``zarr.json`` of the store at ``location`` (a
-    :class:`pipeline.store.location.Location`): the root's, then each group's children's,
-    concurrently per group (in object storage that is one listing per group and one
-    request per node, never a listing of the chunks).  StoreError naming the first that
-    Zarr cannot read (:func:`parse_metadata`) or the storage failure met."""
+    :class:`pipeline.store.location.Location`; through ``zstore`` when given): the root's,
+    then each group's children's, concurrently per group (in object storage that is one
+    listing per group and one request per node, never a listing of the chunks).  StoreError
+    naming the first that Zarr cannot read (:func:`parse_metadata`) or the storage failure
+    met."""
     from zarr.core.buffer import default_buffer_prototype
     from zarr.core.sync import sync
 
-    zstore = location.zarr_store(read_only=True)
+    if zstore is None:
+        zstore = location.zarr_store(read_only=True)
 
     async def node(prefix: str) -> None:
         key = f"{prefix}zarr.json"
