@@ -130,7 +130,13 @@ def check_store(cfg) -> None:
 
 
 def _one_line(exc: Exception) -> str:
-    """Hydra's multi-line composition error as one line: the override, then the reason."""
+    """Hydra's multi-line composition error as one line: the override, then the reason (a
+    YAML file that cannot be parsed, the package's or one on ``hydra.searchpath``: the file,
+    line and column, then what the parser found)."""
+    mark = getattr(exc, "problem_mark", None)  # yaml's MarkedYAMLError
+    if mark is not None:
+        return (f"{mark.name} line {mark.line + 1} column {mark.column + 1}: not valid YAML "
+                f"({getattr(exc, 'problem', None) or type(exc).__name__})")
     lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
     head = lines[0] if lines else type(exc).__name__
     for prefix in ("Error merging override ", "Could not override "):

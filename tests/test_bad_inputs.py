@@ -377,6 +377,20 @@ def test_python_m_pipeline_refuses_before_generate_writes(tmp_path, overrides, w
     assert not store.exists() and sorted(os.listdir(tmp_path)) == []
 
 
+def test_a_yaml_file_that_cannot_be_parsed_is_named_with_its_line(tmp_path):
+    """A config group file of the user's own (on ``hydra.searchpath``) with a syntax error:
+    the file, its line and column, in one line."""
+    mine = tmp_path / "conf" / "domain" / "mine.yaml"
+    mine.parent.mkdir(parents=True)
+    mine.write_text("name: planar\n  bad: [1,\n")
+    work = tmp_path / "work"
+    work.mkdir()
+    store, res = run_pipeline(work, f"hydra.searchpath=[file://{tmp_path / 'conf'}]",
+                              "domain=mine", "stage=generate")
+    bad_input(res, f"{mine} line 2 column 6: not valid YAML", "mapping values")
+    assert sorted(os.listdir(work)) == []
+
+
 def test_report_refuses_a_store_evaluated_without_box_before_writing(made, tmp_path):
     store = tmp_path / "copy.zarr"
     shutil.copytree(made[0], store)
