@@ -61,17 +61,73 @@ def _end(err: Console, kind: str, exc: Exception, code: int) -> None:
     sys.exit(code)
 
 
+#: Hydra's flag for a sweep (``-m``): each of its jobs is checked before any starts
+MULTIRUN = ("-m", "--multirun")
+
+
 def config_error(args: list[str]) -> str | None:
     """One line saying why the config composed from ``args`` cannot run: Hydra cannot
     compose it (an unknown key, a value of the wrong type), a value is refused by
     :func:`pipeline.validation.validate`, or its store cannot be used (:func:`check_store`).
-    None when it can run, or when ``args`` hold flags (``-m``, ``--cfg``, ...), which Hydra
-    handles itself (``main`` validates each job).
+    A sweep (``-m``): the first of its jobs that cannot run (:func:`sweep_error`).  None
+    when it can run, or when ``args`` hold other flags (``--cfg``, ...), which Hydra handles
+    itself (``main`` validates each job).
 
     Checked before Hydra starts, so a refused command writes nothing, not even Hydra's
-    ``outputs/`` folder."""
-    if any(a.startswith("-") for a in args):
+    ``outputs/`` or ``multirun/`` folder."""
+    flags = [a for a in args if a.startswith("-")]
+    if flags:
+        if set(flags) <= set(MULTIRUN):
+            return sweep_error([a for a in args if a not in MULTIRUN])
         return None
+    return _job_error(args)
+
+
+def sweep_error(overrides: list[str]) -> str | None:
+    """The first job of the sweep ``overrides`` that cannot run (:func:`config_error`),
+    named as Hydra numbers it, with its swept values: ``sweep job #1 (evaluate.k=0):
+    evaluate.k=0: must lie between ...``.  None when every job can run, or when the sweep
+    is not the basic sweeper's (``hydra/sweeper=...``: another sweeper reads the overrides
+    its own way; Hydra validates each job it makes)."""
+    for number, (swept, job) in enumerate(sweep_jobs(overrides) or ()):
+        problem = _job_error(job)
+        if problem:
+            return f"sweep job #{number} ({' '.join(swept)}): {problem}" if swept else problem
+    return None
+
+
+def sweep_jobs(overrides: list[str]) -> list[tuple[list[str], list[str]]] | None:
+    """The jobs Hydra's basic sweeper makes of ``overrides``: (the job's swept overrides,
+    all its overrides) each, in the sweeper's order (the cartesian product of the sweeps,
+    the last varying fastest).  Overrides Hydra cannot parse are one job (composing it
+    names the problem); None when another sweeper is chosen or a sweep is not a list of
+    values (an interval, which only an optimising sweeper samples)."""
+    import itertools
+
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    try:
+        parsed = OverridesParser.create().parse_overrides(overrides)
+    except Exception:  # noqa: BLE001 - Hydra's parser raises several types; compose names it
+        return [([], overrides)]
+    if any(o.key_or_group == "hydra/sweeper" for o in parsed):
+        return None
+    choices = []
+    for o in parsed:
+        if not o.is_sweep_override():
+            choices.append([(False, o.input_line)])
+            continue
+        try:
+            values = list(o.sweep_string_iterator())
+        except Exception:  # noqa: BLE001 - an interval sweep: not the basic sweeper's
+            return None
+        choices.append([(True, f"{o.get_key_element()}={v}") for v in values])
+    return [([arg for swept, arg in job if swept], [arg for _, arg in job])
+            for job in itertools.product(*choices)]
+
+
+def _job_error(args: list[str]) -> str | None:
+    """:func:`config_error` of one run's overrides."""
     broken = plugin_problem(args)
     if broken:
         return broken

@@ -377,6 +377,18 @@ def test_python_m_pipeline_refuses_before_generate_writes(tmp_path, overrides, w
     assert not store.exists() and sorted(os.listdir(tmp_path)) == []
 
 
+def test_a_sweep_with_a_job_that_cannot_run_starts_none(tmp_path):
+    """``-m``: every job is checked before Hydra starts; the first that cannot run is
+    named (job #0 here could run: it must not have been run, nor anything written)."""
+    store, res = run_pipeline(tmp_path, "-m", "stage=generate", "evaluate.k=1,0",
+                              "seed=3,4")
+    bad_input(res, "sweep job #2 (evaluate.k=0 seed=3): evaluate.k=0")
+    assert sorted(os.listdir(tmp_path)) == []  # no store, no multirun/ folder
+    store, res = run_pipeline(tmp_path, "-m", "stage=generate", "planner=nonesuch,noop")
+    bad_input(res, "sweep job #0 (planner=nonesuch)", "nonesuch")
+    assert sorted(os.listdir(tmp_path)) == []
+
+
 def test_a_yaml_file_that_cannot_be_parsed_is_named_with_its_line(tmp_path):
     """A config group file of the user's own (on ``hydra.searchpath``) with a syntax error:
     the file, its line and column, in one line."""
