@@ -90,7 +90,7 @@ def sweep_error(overrides: list[str]) -> str | None:
     is not the basic sweeper's (``hydra/sweeper=...``: another sweeper reads the overrides
     its own way; Hydra validates each job it makes)."""
     for number, (swept, job) in enumerate(sweep_jobs(overrides) or ()):
-        problem = _job_error(job)
+        problem = _job_error(job, report_stores=False)  # an earlier job may make them
         if problem:
             return f"sweep job #{number} ({' '.join(swept)}): {problem}" if swept else problem
     return None
@@ -126,8 +126,9 @@ def sweep_jobs(overrides: list[str]) -> list[tuple[list[str], list[str]]] | None
             for job in itertools.product(*choices)]
 
 
-def _job_error(args: list[str]) -> str | None:
-    """:func:`config_error` of one run's overrides."""
+def _job_error(args: list[str], report_stores: bool = True) -> str | None:
+    """:func:`config_error` of one run's overrides (``report_stores``: see
+    :func:`pipeline.validation.validate`)."""
     broken = plugin_problem(args)
     if broken:
         return broken
@@ -142,7 +143,7 @@ def _job_error(args: list[str]) -> str | None:
     except Exception as exc:  # noqa: BLE001 - Hydra/OmegaConf raise many types; all mean "bad"
         return _one_line(exc)
     try:
-        validate(cfg)
+        validate(cfg, report_stores=report_stores)
         check_store(cfg)
     except (StoreError, ValueError) as exc:
         return str(exc)

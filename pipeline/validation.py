@@ -59,13 +59,15 @@ class Need:
     bytes: float
 
 
-def validate(cfg, available: float | None = None) -> None:
+def validate(cfg, available: float | None = None, report_stores: bool = True) -> None:
     """Check every key of ``cfg`` (a composed Hydra config or a plain dict).
 
     ``available``: bytes of memory the run may use (default: what the OS reports as
     available now; None there skips the memory checks).  Raises :class:`ConfigError`.
     Stage ``report`` also needs its stores to hold an evaluation of ``box``; that is
-    checked here too, before anything is written (a StoreError for a missing store).
+    checked here too, before anything is written (a StoreError for a missing store),
+    unless ``report_stores`` is False (a sweep checked before it starts: an earlier job may
+    make them; each job checks them again when it starts).
     """
     plain = (OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)
              if OmegaConf.is_config(cfg) else cfg)
@@ -76,9 +78,9 @@ def validate(cfg, available: float | None = None) -> None:
         raise ConfigError(f"evaluate.selectors={plain['evaluate']['selectors']}: stage all ends "
                           f"with the report, which draws {REPORT_NEEDS} (learning curve, C "
                           f"sensitivity, renders); add {REPORT_NEEDS}")
-    if stage is Stage.report:
+    if report_stores and stage is Stage.report:
         check_report_stores(report_paths(plain))
-    if stage is Stage.all and plain["report"]["stores"]:  # this run evaluates its own store
+    if report_stores and stage is Stage.all and plain["report"]["stores"]:  # evaluates its own
         own = run_store(plain)
         check_report_stores([p for p in report_paths(plain) if p != own])
 

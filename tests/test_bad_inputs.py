@@ -389,6 +389,20 @@ def test_a_sweep_with_a_job_that_cannot_run_starts_none(tmp_path):
     assert sorted(os.listdir(tmp_path)) == []
 
 
+def test_a_sweep_job_may_report_on_a_store_an_earlier_job_makes(tmp_path, monkeypatch):
+    """The stores a report reads are not required before a sweep starts (its first job
+    may make them); each job checks them when it starts."""
+    monkeypatch.setenv("DASK_LOGGING__DISTRIBUTED", "warning")  # what the entry point sets
+    from pipeline.__main__ import config_error
+
+    args = [*pr.SMALL, f"store.path={tmp_path / 's.zarr'}"]
+    assert "no store" in config_error([*args, "stage=report"])
+    assert config_error(["-m", *args, "stage=all,report"]) is None
+    assert config_error(["-m", *args, "stage=all,report", "evaluate.k=0"]).startswith(
+        "sweep job #0 (stage=all): evaluate.k=0")
+    assert sorted(os.listdir(tmp_path)) == []
+
+
 def test_a_yaml_file_that_cannot_be_parsed_is_named_with_its_line(tmp_path):
     """A config group file of the user's own (on ``hydra.searchpath``) with a syntax error:
     the file, its line and column, in one line."""
