@@ -90,7 +90,7 @@ def sweep_error(overrides: list[str]) -> str | None:
     is not the basic sweeper's (``hydra/sweeper=...``: another sweeper reads the overrides
     its own way; Hydra validates each job it makes)."""
     for number, (swept, job) in enumerate(sweep_jobs(overrides) or ()):
-        problem = _job_error(job, report_stores=False)  # an earlier job may make them
+        problem = _job_error(job, in_sweep=True)
         if problem:
             return f"sweep job #{number} ({' '.join(swept)}): {problem}" if swept else problem
     return None
@@ -126,9 +126,11 @@ def sweep_jobs(overrides: list[str]) -> list[tuple[list[str], list[str]]] | None
             for job in itertools.product(*choices)]
 
 
-def _job_error(args: list[str], report_stores: bool = True) -> str | None:
-    """:func:`config_error` of one run's overrides (``report_stores``: see
-    :func:`pipeline.validation.validate`)."""
+def _job_error(args: list[str], in_sweep: bool = False) -> str | None:
+    """:func:`config_error` of one run's overrides.  ``in_sweep``: a job of a sweep,
+    checked before the sweep starts, so the stores an earlier job may make are not required
+    yet (those a report reads, the run's own for a stage that needs earlier ones); each job
+    checks them when it starts."""
     broken = plugin_problem(args)
     if broken:
         return broken
@@ -143,8 +145,8 @@ def _job_error(args: list[str], report_stores: bool = True) -> str | None:
     except Exception as exc:  # noqa: BLE001 - Hydra/OmegaConf raise many types; all mean "bad"
         return _one_line(exc)
     try:
-        validate(cfg, report_stores=report_stores)
-        check_store(cfg)
+        validate(cfg, report_stores=not in_sweep)
+        check_store(cfg, in_sweep)
     except (StoreError, ValueError) as exc:
         return str(exc)
     return None
@@ -174,16 +176,28 @@ def _location(cfg):
                   plain["store"].get("storage_options"))
 
 
-def check_store(cfg) -> None:
+def check_store(cfg, in_sweep: bool = False) -> None:
     """The run's store, if something is there, can be reached and is a store of ours whose
     metadata can be read: a StoreError otherwise (no credentials, an endpoint that cannot be
     reached, permission denied, a ``zarr.json`` that is truncated or invalid, a foreign
-    store).  The run checks all this again; checking it first writes nothing."""
-    from pipeline.store import check_is_ours
+    store).  Where nothing is there, the stage must be one that can start a store (not
+    ``stage=evaluate`` alone, say: it would make an empty store only to refuse it), unless
+    ``in_sweep`` (:func:`_job_error`).  The run checks all this again; checking it first
+    writes nothing."""
+    from pipeline.configs import NEEDS, needs_first
+    from pipeline.store import StoreError, check_is_ours
 
     location = _location(cfg)
     if not location.is_empty():
         check_is_ours(location)
+        return
+    stage = getattr(cfg.stage, "value", cfg.stage)
+    if in_sweep:
+        return
+    if stage in NEEDS:
+        raise StoreError(f"no store at {location}: {needs_first(NEEDS[stage], stage)}")
+    if stage in ("solve", "status"):  # they read a store (a report's are validate's)
+        raise StoreError(f"no store at {location}")
 
 
 def _one_line(exc: Exception) -> str:

@@ -39,6 +39,18 @@ class Stage(enum.Enum):
     all = "all"
 
 
+#: the stage each store-writing stage needs finished first (stage=generate and stage=all
+#: run them in order; a stage run alone on a store without it is refused)
+NEEDS = {"raw": "instances", "constraints": "raw", "scores": "constraints",
+         "evaluate": "scores"}
+
+
+def needs_first(stage: str, needed_by: str) -> str:
+    """The one-line refusal of stage ``needed_by`` on a store where ``stage`` is missing."""
+    return (f"stage {needed_by} needs stage {stage} first (run stage={stage}, or "
+            "stage=generate for all of them)")
+
+
 class StoreMode(enum.Enum):
     resume = "resume"  # continue a store made with the same config; refuse a different one
     overwrite = "overwrite"  # replace a store of ours made with a different config

@@ -389,15 +389,31 @@ def test_a_sweep_with_a_job_that_cannot_run_starts_none(tmp_path):
     assert sorted(os.listdir(tmp_path)) == []
 
 
-def test_a_sweep_job_may_report_on_a_store_an_earlier_job_makes(tmp_path, monkeypatch):
-    """The stores a report reads are not required before a sweep starts (its first job
-    may make them); each job checks them when it starts."""
+@pytest.mark.parametrize("stage, words", [
+    ("scores", ("stage scores needs stage constraints first",)),
+    ("evaluate", ("stage evaluate needs stage scores first", "stage=generate")),
+    ("solve", ()),
+])
+def test_a_stage_that_reads_a_store_refuses_a_missing_one_writing_nothing(tmp_path, stage,
+                                                                          words):
+    """Before: the run made an empty store and Hydra's outputs/ folder, then refused."""
+    store, res = run_pipeline(tmp_path, f"stage={stage}")
+    bad_input(res, f"no store at {store}", *words)
+    assert sorted(os.listdir(tmp_path)) == []
+
+
+def test_a_sweep_job_may_use_a_store_an_earlier_job_makes(tmp_path, monkeypatch):
+    """The stores an earlier job of a sweep may make (the report's, the run's own for a
+    stage that needs earlier ones) are not required before it starts; each job checks
+    them when it starts."""
     monkeypatch.setenv("DASK_LOGGING__DISTRIBUTED", "warning")  # what the entry point sets
     from pipeline.__main__ import config_error
 
     args = [*pr.SMALL, f"store.path={tmp_path / 's.zarr'}"]
     assert "no store" in config_error([*args, "stage=report"])
+    assert "no store" in config_error([*args, "stage=evaluate"])
     assert config_error(["-m", *args, "stage=all,report"]) is None
+    assert config_error(["-m", *args, "stage=generate,evaluate"]) is None
     assert config_error(["-m", *args, "stage=all,report", "evaluate.k=0"]).startswith(
         "sweep job #0 (stage=all): evaluate.k=0")
     assert sorted(os.listdir(tmp_path)) == []

@@ -172,8 +172,7 @@ class Run:
 
     def require(self, stage: str, needed_by: str) -> None:
         if self.store is None or self.store.stage_info(stage) is None:
-            raise StoreError(f"stage {needed_by} needs stage {stage} first "
-                             f"(run stage={stage}, or stage=generate for all of them)")
+            raise StoreError(configs.needs_first(stage, needed_by))
 
     # -- what changed ------------------------------------------------------------------------
     def todo(self, stage: str) -> str | None:
