@@ -17,11 +17,15 @@ from pipeline.store.score_store import ScoreStore
 
 
 class CountingStore(zarr.storage.WrapperStore):
-    """A store that counts the reads of each key (it changes nothing)."""
+    """A store that counts the reads of each key (it changes nothing); the views Zarr
+    derives from it (``with_read_only``) count into the same counter."""
 
-    def __init__(self, store):
+    def __init__(self, store, reads: collections.Counter | None = None):
         super().__init__(store)
-        self.reads = collections.Counter()
+        self.reads = collections.Counter() if reads is None else reads
+
+    def _with_store(self, store):
+        return type(self)(store, self.reads)
 
     async def get(self, key, prototype, byte_range=None):
         self.reads[key] += 1

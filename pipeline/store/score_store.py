@@ -199,14 +199,18 @@ class ScoreStore(Readers, BlockWrites, Verification):
 
         The caller holds the :class:`StoreLock`.  A store with a different identity is
         refused with the differing keys named, or replaced when ``overwrite``; anything
-        that is not a store of ours is refused and never modified.
+        that is not a store of ours is refused and never modified.  The store is then the
+        run's alone, so it remembers each document it read until it writes it
+        (:mod:`pipeline.store.documents_once`): the check here and the run's reads that
+        follow read each once.
         """
         from pipeline.configs import config_hash, differing_keys
 
         location = locate(path)
         if not location.is_empty():
-            check_is_ours(location)
-            store = cls(location)
+            zstore = _run_view(location)
+            check_is_ours(location, zstore)
+            store = cls(location, zstore=zstore)
             stored = store.attrs.get("identity")
             keys = differing_keys(stored or {}, identity)  # as comparable: configs.comparable
             if stored is not None and not keys:
@@ -219,7 +223,7 @@ class ScoreStore(Readers, BlockWrites, Verification):
         root = zarr.open_group(store=location.zarr_store(read_only=False), mode="w",
                                use_consolidated=False)
         root.require_group(INTEGRITY)
-        store = cls(location)
+        store = cls(location, zstore=_run_view(location))
         store.set_attrs(
             format=FORMAT, layout_version=LAYOUT_VERSION, identity=identity,
             config_hash=config_hash(identity), config=config, versions=versions(),
@@ -427,6 +431,12 @@ class ScoreStore(Readers, BlockWrites, Verification):
             warnings.filterwarnings("ignore", message=".*[Cc]onsolidated metadata.*")
             zarr.consolidate_metadata(self.zstore)
         self._consolidated_at = self.zstore.document_changes
+
+
+def _run_view(location: Location) -> DocumentsReadOnce:
+    """The view of the store of a run that holds its lock (the only writer): it remembers
+    every document until it is written through it."""
+    return DocumentsReadOnce(location.zarr_store(read_only=False), always=True)
 
 
 def _doc_key(path: str) -> str:
