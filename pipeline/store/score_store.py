@@ -172,8 +172,9 @@ class ScoreStore(Readers, BlockWrites, Verification):
         """An existing store of ours (for evaluation, export, reports).  ``checked``: its
         metadata documents are checked first (StoreDamaged naming each difference), so a
         reader never allocates what a damaged document claims (status checks them itself)."""
-        store = cls.checked(path) if read_only else None
-        if store is None:
+        if read_only:
+            store = cls.checked(path)
+        else:
             check_is_ours(path)
             store = cls(path, read_only=False)
         if checked:
