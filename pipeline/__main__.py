@@ -191,9 +191,9 @@ def check_store(cfg, in_sweep: bool = False) -> None:
     if not location.is_empty():
         check_is_ours(location)
         return
-    stage = getattr(cfg.stage, "value", cfg.stage)
     if in_sweep:
         return
+    stage = getattr(cfg.stage, "value", cfg.stage)
     if stage in NEEDS:
         raise StoreError(f"no store at {location}: {needs_first(NEEDS[stage], stage)}")
     if stage in ("solve", "status"):  # they read a store (a report's are validate's)

@@ -136,8 +136,9 @@ def _write_stages(run: Run, names) -> None:
             STAGES[name](run)
             run.store.consolidate()  # if this stage changed a metadata document
         if run.wrote:
-            if run.store.attrs.get("config") != run.recorded_config():
-                run.store.set_attrs(config=run.recorded_config())  # the latest settings
+            latest = run.recorded_config()
+            if run.store.attrs.get("config") != latest:
+                run.store.set_attrs(config=latest)  # the settings of the latest run
             run.store.consolidate()
     except OSError as exc:
         raise write_error(run.location, exc) from None

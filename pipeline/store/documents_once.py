@@ -46,11 +46,10 @@ class DocumentsReadOnce(zarr.storage.WrapperStore):
 
     def __init__(self, store, always: bool = False, _shared: _Shared | None = None) -> None:
         super().__init__(store)
-        self._always = always
         self._shared = _Shared(always) if _shared is None else _shared
 
     def _with_store(self, store) -> DocumentsReadOnce:
-        return type(self)(store, self._always, self._shared)
+        return type(self)(store, _shared=self._shared)
 
     @property
     def document_changes(self) -> int:
