@@ -10,13 +10,12 @@ from dataclasses import dataclass
 
 from rich.console import Console
 
-from pipeline.cluster import ClusterFailed, TaskFailed, connect_first, tune_workers, worker_side
-from pipeline.cluster import connect as dask_client
+from pipeline.cluster import ClusterFailed, TaskFailed, connect_first
 from pipeline.cluster.watchdog import Watchdog
 from pipeline.entry_progress import EntryCount, counting
 from pipeline.progress import EntryProgress
 
-__all__ = ["Task", "TaskFailed", "connect_first", "dask_client", "run_tasks", "tune_workers"]
+__all__ = ["Task", "TaskFailed", "connect_first", "dask_client", "run_tasks"]
 
 #: Seconds between checks of the cluster while waiting for results.
 POLL_S = 1.0
@@ -33,7 +32,17 @@ class Task:
     block: tuple
 
 
+def dask_client(cfg, console: Console, preload=()):
+    """:func:`pipeline.cluster.connect` (imported here, with ``distributed``, only when a
+    run starts or reaches a cluster)."""
+    from pipeline.cluster.session import connect
+
+    return connect(cfg, console, preload)
+
+
 def _cannot_import(exc: BaseException) -> bool:
+    from pipeline.cluster import worker_side
+
     return isinstance(exc, ModuleNotFoundError) and \
         (exc.name or "").split(".")[0] in worker_side.PACKAGES
 
@@ -50,6 +59,8 @@ def run_tasks(client, tasks: list[Task], on_done: Callable[[Task, dict], None], 
     ``progress``: show the entries done (``pipeline.progress``; lines every ``every_s``
     seconds off a terminal).
     """
+    from pipeline.cluster import worker_side
+
     watchdog = getattr(client, "watchdog", None) or Watchdog(
         client, timeout=180.0, digest=worker_side.code_digest(),
         say=lambda text: console.print(text, highlight=False))

@@ -19,7 +19,8 @@ HEAVY = ("ompl", "pybullet")
 SLOW_SCIPY = ("scipy.special", "scipy.stats", "scipy.sparse", "scipy.io", "scipy.spatial")
 
 
-WATCHED = ("ompl", "pybullet", "matplotlib.pyplot", "pipeline.domains.grasp_arm", *SLOW_SCIPY)
+WATCHED = ("ompl", "pybullet", "matplotlib.pyplot", "pipeline.domains.grasp_arm", "distributed",
+           *SLOW_SCIPY)
 
 
 def loaded_after(code: str) -> dict:
@@ -43,6 +44,37 @@ def test_light_modules_load_neither_ompl_nor_pybullet(module):
 def test_box_core_and_the_entry_points_load_no_slow_scipy_subpackage(module):
     loaded = loaded_after(f"import {module}")
     assert not any(loaded[m] for m in SLOW_SCIPY), loaded
+
+
+@pytest.mark.parametrize("module", ["pipeline.stages", "pipeline.execution", "pipeline.cluster",
+                                    "pipeline.validation"])
+def test_the_stages_load_distributed_only_to_start_a_cluster(module):
+    """``distributed`` (about 0.35 s to import) is imported where a cluster is started or
+    reached, not by the modules every command imports."""
+    assert not loaded_after(f"import {module}")["distributed"]
+
+
+def run_main(*args: str) -> str:
+    """``python -m pipeline ARGS`` in this interpreter's probe, as ``loaded_after`` code."""
+    return (f"import runpy\nsys.argv = ['pipeline', *{list(args)}]\ntry:\n"
+            "    runpy.run_module('pipeline', run_name='__main__', alter_sys=True)\n"
+            "except SystemExit:\n    pass")
+
+
+def test_commands_that_start_no_cluster_do_not_import_distributed(made, tmp_path):
+    """A refused command, ``stage=status`` and a re-run with nothing to do start no cluster,
+    so they do not import ``distributed``; a run that plans does (the control)."""
+    from tests import pipeline_runs as pr
+
+    store, _ = made
+    small = [*pr.SMALL, "hydra.run.dir=" + str(tmp_path / "out")]
+    for args in (["stage=status", f"store.path={tmp_path / 'none.zarr'}"],
+                 [*small, f"store.path={store}", "stage=status"],
+                 [*small, f"store.path={store}", "stage=generate"]):
+        assert not loaded_after(run_main(*args))["distributed"], args
+    assert loaded_after(run_main(*small, f"store.path={tmp_path / 'new.zarr'}",
+                                 "instances.n=6", "constraints.m=5",
+                                 "stage=generate"))["distributed"]
 
 
 def test_registering_the_pipeline_configs_loads_no_domain():

@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
-from dask.utils import parse_bytes
-
-from pipeline.cluster import worker_side
 from pipeline.cluster.errors import ClusterError, ClusterFailed
 from pipeline.configs import ClusterKind
+
+
+def connect_first(cfg) -> bool:
+    """Check the ``cluster.*`` keys (ClusterError) and say whether the run should connect
+    before it touches the store: yes for a scheduler elsewhere (address, SLURM), which can
+    be unreachable or missing; a LocalCluster cannot be, so it starts only when a block
+    needs computing (a finished store starts no cluster)."""
+    check_config(cfg)
+    return cfg.kind is not ClusterKind.local
 
 
 def check_config(cfg) -> None:
@@ -32,6 +38,8 @@ def check_config(cfg) -> None:
         if s.max_replacements < 0:
             raise ClusterError(f"cluster.slurm.max_replacements must be >= 0, got "
                                f"{s.max_replacements}")
+        from dask.utils import parse_bytes
+
         try:
             if parse_bytes(s.memory_per_worker) <= 0:
                 raise ValueError
@@ -43,6 +51,8 @@ def check_config(cfg) -> None:
 def check_workers(client, addresses, expected_digest: str, say) -> None:
     """Probe newly connected workers: stop the run (ClusterFailed) when one cannot import
     this package or runs other code; say one line when one lacks the tuning."""
+    from pipeline.cluster import worker_side
+
     results = client.run(worker_side.probe, workers=sorted(addresses), on_error="return")
     untuned = []
     for address, info in sorted(results.items()):

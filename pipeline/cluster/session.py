@@ -28,15 +28,6 @@ class ClusterClient(Client):
     watchdog: Watchdog | None = None
 
 
-def connect_first(cfg) -> bool:
-    """Check the ``cluster.*`` keys (ClusterError) and say whether the run should connect
-    before it touches the store: yes for a scheduler elsewhere (address, SLURM), which can
-    be unreachable or missing; a LocalCluster cannot be, so it starts only when a block
-    needs computing (a finished store starts no cluster)."""
-    check_config(cfg)
-    return cfg.kind is not ClusterKind.local
-
-
 def tune_workers() -> None:
     """Set worker_side's tuning in this process's dask config, before it starts a
     LocalCluster: its nannies (in this process) then start tuned workers directly."""
