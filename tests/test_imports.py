@@ -64,9 +64,12 @@ def run_main(*args: str) -> str:
 def test_commands_that_start_no_cluster_do_not_import_distributed(made, tmp_path):
     """A refused command, ``stage=status`` and a re-run with nothing to do start no cluster,
     so they do not import ``distributed``; a run that plans does (the control)."""
+    import shutil
+
     from tests import pipeline_runs as pr
 
-    store, _ = made
+    store = tmp_path / "copy.zarr"  # a re-run takes the store's lock: not on the shared one
+    shutil.copytree(made[0], store)
     small = [*pr.SMALL, "hydra.run.dir=" + str(tmp_path / "out")]
     for args in (["stage=status", f"store.path={tmp_path / 'none.zarr'}"],
                  [*small, f"store.path={store}", "stage=status"],
