@@ -10,7 +10,7 @@ import numpy as np
 
 from pipeline.domains.schemas import IK_METHODS
 from pipeline.planning import Status
-from pipeline.sim.panda import REACH, ik_starts
+from pipeline.sim.panda import REACH, ik_starts, wrist_out_of_reach
 
 
 @dataclass(frozen=True)
@@ -30,8 +30,9 @@ METHODS = IK_METHODS
 
 def solve_ik(arm, position, orientation, rng_seed, restarts: int,
              method: str = "damped") -> IKOutcome:
-    """A collision-free configuration of ``arm`` (anything with ``shoulder``, ``ik`` and
-    ``analytic_ik``: a Panda, a MobilePanda) with its TCP at ``position``/``orientation``.
+    """A collision-free configuration of ``arm`` (anything with ``shoulder``, ``joint2``,
+    ``ik`` and ``analytic_ik``: a Panda, a MobilePanda) with its TCP at
+    ``position``/``orientation``.
 
     ``method="damped"``: pybullet's damped IK from ``restarts`` starts; the random ones
     draw from ``numpy.random.default_rng(rng_seed)``, made only when a restart needs it
@@ -39,11 +40,15 @@ def solve_ik(arm, position, orientation, rng_seed, restarts: int,
     solutions, at most ``restarts`` of them collision-checked, chosen from the pose alone
     (:mod:`pipeline.sim.analytic_ik`; ``rng_seed`` is not used).
 
-    Beyond REACH of the shoulder no solution can exist: NO_IK without a single IK call.
-    Otherwise NO_IK when no restart reached the pose, GOAL_IN_COLLISION when every one that
-    did collides.
+    Beyond REACH of the shoulder, NO_IK without a single IK call; the same where the wrist
+    cannot be brought near enough to the shoulder for any configuration to reach the pose
+    within IK's tolerances (:func:`pipeline.sim.panda.wrist_out_of_reach`: the outcome
+    every IK would end with, found without running it).  Otherwise NO_IK when no restart
+    reached the pose, GOAL_IN_COLLISION when every one that did collides.
     """
     if np.linalg.norm(np.asarray(position) - arm.shoulder) > REACH:
+        return IKOutcome(None, 0, Status.NO_IK)
+    if wrist_out_of_reach(arm.joint2, position, orientation):
         return IKOutcome(None, 0, Status.NO_IK)
     if method == "damped":
         q, checks, reached = arm.ik(position, orientation, ik_starts(rng_seed, restarts))

@@ -158,6 +158,10 @@ class MobilePanda:
     def shoulder(self) -> np.ndarray:
         return self.arm.shoulder
 
+    @property
+    def joint2(self) -> np.ndarray:
+        return self.arm.joint2
+
     # -- what the sphere pre-check (pipeline.sim.fast_check) reads -------------------------
     hand_links = HAND_LINKS
     #: None, or a function a scene sets: a key that is the same only while everything that

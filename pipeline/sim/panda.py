@@ -27,6 +27,16 @@ REACH = 0.855  # from the shoulder (joint 2) to the TCP at full stretch, metres
 SHOULDER_HEIGHT = 0.333
 #: IK's tolerances: a solution's TCP within these of the pose asked for (metres, radians)
 IK_POS_TOL, IK_ANG_TOL = 0.005, 0.05
+#: The wrist point (panda_link6's origin, where the axes of joints 5 and 6 meet) seen from
+#: the TCP: whatever joint 7 does, it lies on a circle of radius WRIST_RADIUS about the TCP's
+#: z axis, WRIST_BACK behind the TCP (0.107 m flange + 0.105 m hand; 0.088 m: link 7's
+#: offset).  And it is never further than WRIST_REACH from the shoulder: the URDF puts it at
+#: fixed distances hypot(0.316, 0.0825) from the shoulder to the elbow (joint 4) and
+#: hypot(0.384, 0.0825) from the elbow, so no configuration, within the limits or not,
+#: stretches it further than their sum.  tests/test_wrist_reach.py checks all three numbers
+#: against pybullet's forward kinematics.
+WRIST_BACK, WRIST_RADIUS = 0.212, 0.088
+WRIST_REACH = float(np.hypot(0.316, 0.0825) + np.hypot(0.384, 0.0825))
 
 
 class Panda(Robot):
@@ -46,12 +56,27 @@ class Panda(Robot):
             pb.resetJointState(self.body, j, finger_opening, physicsClientId=client)
         self.finger_positions = (finger_opening,) * len(FINGER_JOINTS)
         self.set(HOME)
+        self._joint2: tuple = (None, None)
         self._filter_self_pairs()
         self.q = HOME.copy()
 
     @property
     def shoulder(self) -> np.ndarray:
+        """The point REACH is measured from.  On a base moved by :meth:`set_base` (a mobile
+        robot's) it is 5 cm above joint 2 (pybullet places the base's inertial frame there,
+        not its link frame); kept so, as IK's reach check decides stored entries."""
         return self.base_position + np.array([0.0, 0.0, SHOULDER_HEIGHT])
+
+    @property
+    def joint2(self) -> np.ndarray:
+        """Joint 2's origin where pybullet has the arm now (no joint moves it), read once
+        per base pose: the point :func:`wrist_out_of_reach` measures from."""
+        key = (self.base_position.tobytes(), self.base_yaw)
+        if self._joint2[0] != key:
+            at = pb.getLinkState(self.body, 1, computeForwardKinematics=True,
+                                 physicsClientId=self.client)[4]
+            self._joint2 = (key, np.array(at))
+        return self._joint2[1]
 
     def set_base(self, position, yaw: float = 0.0) -> None:
         """Move the arm's base (a mobile robot carries it around)."""
@@ -186,6 +211,30 @@ class Panda(Robot):
 
         return analytic_ik.solve(self, position, orientation, tries,
                                  collides or self.collides_at)
+
+
+def wrist_out_of_reach(shoulder, position, orientation, pos_tol: float = IK_POS_TOL,
+                       ang_tol: float = IK_ANG_TOL) -> bool:
+    """True when no configuration at all (any joint values) puts the TCP within ``pos_tol``
+    and ``ang_tol`` of ``position``/``orientation`` (x, y, z, w), for an arm whose shoulder
+    is at ``shoulder``: then every IK, damped or analytic, finds nothing it accepts.
+
+    Why it is safe: a configuration whose TCP is within the tolerances has its wrist point
+    within pos_tol + 2 sin(ang_tol / 2) |w| of the pose's wrist circle (w: the wrist point in
+    the TCP's frame, the same vector for both, since it depends on joint 7 only), and its
+    wrist point within WRIST_REACH of the shoulder; so a circle further than their sum (and
+    a millimetre for rounding) from the shoulder cannot be met.  Cheap: a few flops, against
+    about 1.2 ms for damped IK's restarts on a pose none of them reaches."""
+    x, y, z, w = (float(v) for v in orientation)
+    s = 2.0 / (x * x + y * y + z * z + w * w)
+    axis = np.array([s * (x * z + w * y), s * (y * z - w * x), 1.0 - s * (x * x + y * y)])
+    centre = np.asarray(position, float) - WRIST_BACK * axis
+    v = np.asarray(shoulder, float) - centre
+    along = float(v @ axis)
+    across = float(np.linalg.norm(v - along * axis))
+    gap = float(np.hypot(along, across - WRIST_RADIUS))  # the shoulder to the nearest point
+    slack = pos_tol + 2.0 * np.sin(ang_tol / 2.0) * float(np.hypot(WRIST_BACK, WRIST_RADIUS))
+    return gap > WRIST_REACH + slack + 1e-3
 
 
 def ik_starts(rng_seed, restarts: int):
