@@ -15,8 +15,15 @@ core, both measured in the same run.
    first too), so a noisy machine slows both alike.  The issue's rule: ``damped`` stays the
    default unless ``analytic`` gives at least as many feasible entries on the same
    instances.
+3. The wrist-reach test (``pipeline.sim.panda.wrist_out_of_reach``, which answers NO_IK
+   without running IK where no configuration can reach the pose): ``domain.ik=damped``
+   with it and without it (the IK step as it was before, the test replaced by one that
+   never refuses), the same instances × 162 constraints, alternating per instance: CPU ms
+   per entry, the median of the per-instance ratios, the entries it answered and whether
+   every entry is the same (status, feasible, failed step, checks, length, score).
 
 Run: python benchmarks/bench_ik.py [--instances 5] [--entry-instances 20]
+         [--wrist-instances 20]
 """
 
 from __future__ import annotations
@@ -124,11 +131,57 @@ def per_entry(n: int) -> None:
           "these instances (the rule for making it the default)")
 
 
+def wrist_test(n: int) -> None:
+    """Section 3 of the module docstring."""
+    from pipeline.domains import ik as ik_step
+
+    domain = load_domain("grasp_arm")
+    instances = [domain.check_instance(domain.sample_instance(1000 + i)) for i in range(n)]
+    domain.plan(instances[0], 0, seed=0)  # warm-up: scene, kernels
+    real = ik_step.wrist_out_of_reach
+    answered = [0]
+
+    def counted(*args):
+        out = real(*args)
+        answered[0] += out
+        return out
+
+    variants = {"with the wrist test": counted, "without it": lambda *args: False}
+    cpu = {name: np.zeros(n) for name in variants}
+    rows = {name: [] for name in variants}
+    try:
+        for i, inst in enumerate(instances):
+            for name in variants if i % 2 == 0 else list(variants)[::-1]:
+                ik_step.wrist_out_of_reach = variants[name]
+                t0 = time.process_time()
+                rows[name] += [domain.plan(inst, j, seed=j) for j in range(162)]
+                cpu[name][i] = time.process_time() - t0
+    finally:
+        ik_step.wrist_out_of_reach = real
+        domain.close()
+
+    def key(r):  # NaN (a failure's length and score) compares equal to NaN here
+        return (r.status, r.feasible, r.step, r.checks,
+                *(None if np.isnan(x) else x for x in (r.score, r.length)))
+
+    same = sum(key(a) == key(b) for a, b in zip(*rows.values(), strict=True))
+    on, off = cpu["with the wrist test"], cpu["without it"]
+    print(f"\nthe wrist-reach test, grasp_arm, domain.ik=damped, {n} instances x 162 "
+          f"constraints = {n * 162} entries per variant, one core, alternating per instance")
+    for name, t in cpu.items():
+        print(f"  {name:<20} {t.sum() / (n * 162) * 1e3:6.3f} CPU ms per entry")
+    print(f"  without / with: {off.sum() / on.sum():.2f}x in all, {np.median(off / on):.2f}x "
+          f"(median over instances); {answered[0]} entries answered by the test; "
+          f"{same} of {n * 162} entries identical")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--instances", type=int, default=5, help="instances of the per-pose part")
     ap.add_argument("--entry-instances", type=int, default=20,
                     help="instances of the per-entry part (x 162 entries); 0 skips it")
+    ap.add_argument("--wrist-instances", type=int, default=20,
+                    help="instances of the wrist test's part (x 162 entries); 0 skips it")
     args = ap.parse_args()
     try:
         import frankik  # noqa: F401
@@ -137,6 +190,8 @@ def main() -> None:
     per_pose(args.instances)
     if args.entry_instances:
         per_entry(args.entry_instances)
+    if args.wrist_instances:
+        wrist_test(args.wrist_instances)
 
 
 if __name__ == "__main__":
