@@ -144,36 +144,6 @@ def test_every_pybullet_contact_is_flagged_by_the_pre_check(grasp_arm):
     assert contacts > 50
 
 
-def test_the_other_arms_hulls_clear_what_its_spheres_cannot(grasp_arm):
-    """Where the arm's spheres touch the other arm's, the two links' convex hulls decide
-    (as for a self pair): many configurations are cleared there, and every one with a
-    pybullet contact is still flagged (configurations leaning towards the other arm)."""
-    domain = grasp_arm["exact"]
-    rng = np.random.default_rng(11)
-    model = S.panda_spheres(FC.MARGIN)
-    cleared = contacts = 0
-    for seed in (2, 3):
-        scene = domain.scene(domain.check_instance(domain.sample_instance(seed)))
-        arm, other = scene.arms[seed % 2], scene.arms[1 - seed % 2]
-        checker = FC.arm_checker(scene.client_id, arm.body, arm.ignored_pairs, arm.collides_at)
-        assert checker.certified
-        dy, dx = (other.base_position - arm.base_position)[[1, 0]]
-        Q = P.HOME + rng.normal(0, 0.6, (1500, 7))
-        Q[:, 0] = np.arctan2(dy, dx) + rng.normal(0, 0.4, len(Q))
-        Q = np.clip(Q, P.LOWER, P.UPPER)
-        world = checker.world
-        centres = model.world(checker.frames(Q))  # (N, S, 3)
-        gap = np.linalg.norm(centres[:, :, None] - world.sph_c[None, None], axis=3)
-        touching = (gap < model.radii[None, :, None] + world.sph_r[None, None]).any(axis=(1, 2))
-        flagged = checker.uncertain(Q)
-        colliding = np.array([arm.collides_at(q) for q in Q])
-        arm.set(P.HOME)
-        assert not np.any(colliding & ~flagged)
-        cleared += (touching & ~flagged).sum()
-        contacts += colliding.sum()
-    assert cleared > 30 and contacts > 50, (cleared, contacts)
-
-
 # -- same answers as the exact checker -------------------------------------------------------
 def _same_answers(checker, exact, edges):
     for states in edges:

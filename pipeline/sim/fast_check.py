@@ -122,10 +122,6 @@ class World:
     og_hi: np.ndarray | None = None  # obs spheres og_lo[k]:og_hi[k], with a bounding
     og_c: np.ndarray | None = None  # sphere (og_c, og_r)
     og_r: np.ndarray | None = None
-    og_F: np.ndarray | None = None  # per group, the link's convex hull: its vertices
-    og_hull: np.ndarray | None = None  # og_hull[og_hlo[k]:og_hhi[k]] in frame og_F[k]
-    og_hlo: np.ndarray | None = None  # (3 x 4); an empty range: no hull known
-    og_hhi: np.ndarray | None = None
 
     def __post_init__(self):
         self.box_r = np.linalg.norm(self.box_h, axis=1)
@@ -136,17 +132,13 @@ class World:
             n = len(self.sph_r)
             self.og_lo, self.og_hi = np.arange(n), np.arange(1, n + 1)
             self.og_c, self.og_r = self.sph_c.copy(), self.sph_r.copy()
-        if self.og_F is None:  # no hulls
-            k = len(self.og_lo)
-            self.og_F, self.og_hull = np.zeros((k, 3, 4)), np.zeros((0, 3))
-            self.og_hlo = self.og_hhi = np.zeros(k, dtype=np.int64)
 
     @classmethod
     def read(cls, client: int, skip, only=None) -> World | None:
         """Every body of ``client`` but those in ``skip`` (or the bodies ``only``); None
         when one is neither a box nor a Panda."""
         boxes, halves, bodies, centres, radii = [], [], [], [np.zeros((0, 3))], [np.zeros(0)]
-        groups, hulls = [], [np.zeros((0, 3))]
+        groups = []
         if only is None:
             only = [pb.getBodyUniqueId(i, physicsClientId=client)
                     for i in range(pb.getNumBodies(physicsClientId=client))]
@@ -161,16 +153,12 @@ class World:
                 halves.append(shapes[0][3])
                 bodies.append(body)
             elif _is_panda(client, body):
-                c, r, parts, verts = _panda_obstacle(
-                    tuple(arm_state(client, body)),
-                    tuple(base_link_frame(client, body)[:3].ravel()))
+                c, r, parts = _panda_obstacle(tuple(arm_state(client, body)),
+                                              tuple(base_link_frame(client, body)[:3].ravel()))
                 first = sum(len(r) for r in radii)
-                at = sum(len(v) for v in hulls)
-                groups += [(first + lo, first + hi, gc, gr, F, at + vlo, at + vhi)
-                           for lo, hi, gc, gr, F, vlo, vhi in parts]
+                groups += [(first + lo, first + hi, gc, gr) for lo, hi, gc, gr in parts]
                 centres.append(c)
                 radii.append(r)
-                hulls.append(verts)
             else:
                 return None
         R = _matrices(np.array([b[1] for b in boxes]).reshape(-1, 4))
@@ -184,11 +172,7 @@ class World:
                    np.array([g[0] for g in groups], dtype=np.int64),
                    np.array([g[1] for g in groups], dtype=np.int64),
                    np.array([g[2] for g in groups]).reshape(-1, 3),
-                   np.array([g[3] for g in groups]),
-                   np.array([g[4] for g in groups]).reshape(-1, 3, 4),
-                   np.concatenate(hulls),
-                   np.array([g[5] for g in groups], dtype=np.int64),
-                   np.array([g[6] for g in groups], dtype=np.int64))
+                   np.array([g[3] for g in groups]))
 
 
     def packed(self) -> tuple:
@@ -197,9 +181,7 @@ class World:
             self._pack = collide.pack(dict(
                 box_c=self.box_c, box_R=self.box_R, box_h=self.box_h, box_r=self.box_r,
                 box_e=self.box_e, og_c=self.og_c, og_r=self.og_r, og_lo=self.og_lo,
-                og_hi=self.og_hi, obs_c=self.sph_c, obs_r=self.sph_r, og_F=self.og_F,
-                og_hull=self.og_hull, og_hlo=self.og_hlo, og_hhi=self.og_hhi),
-                collide.WORLD_PACK)
+                og_hi=self.og_hi, obs_c=self.sph_c, obs_r=self.sph_r), collide.WORLD_PACK)
         return self._pack
 
     def join(self, other: World) -> World | None:
@@ -209,8 +191,7 @@ class World:
         return World(np.concatenate([self.box_c, other.box_c]),
                      np.concatenate([self.box_R, other.box_R]),
                      np.concatenate([self.box_h, other.box_h]), self.sph_c, self.sph_r,
-                     self.bodies + other.bodies, self.og_lo, self.og_hi, self.og_c, self.og_r,
-                     self.og_F, self.og_hull, self.og_hlo, self.og_hhi)
+                     self.bodies + other.bodies, self.og_lo, self.og_hi, self.og_c, self.og_r)
 
 
 class _Memo:
@@ -268,23 +249,16 @@ def _poses(client: int, bodies) -> tuple:
 @functools.lru_cache(maxsize=16)
 def _panda_obstacle(q: tuple, base: tuple):
     """Another Panda (joint state ``q``, base link frame ``base``: 3 × 4, flattened) as
-    obstacle spheres: (centres, radii, per link (first, end, bounding centre and radius,
-    the frame its hull rides on, first and end vertex), the hulls' vertices in those
-    frames).  Remembered: the other arm of a scene stands still between planning calls."""
+    obstacle spheres: (centres, radii, per link (first, end, bounding centre and
+    radius)).  Remembered: the other arm of a scene stands still between planning calls."""
     model = spheres.panda_spheres(MARGIN)
-    hulls = spheres.panda_hulls()
     frame = np.vstack([np.reshape(base, (3, 4)), [0.0, 0.0, 0.0, 1.0]])
-    frames = _arm_frames_fn(frame)(np.array([q]))
-    c = model.world(frames)[0]
-    parts, verts, at = [], [], 0
+    c = model.world(_arm_frames_fn(frame)(np.array([q])))[0]
+    parts = []
     for link in spheres.LINKS:
         idx = np.flatnonzero(model.links == link)
-        hull = hulls.get(link, np.zeros((0, 3)))
-        parts.append((idx[0], idx[-1] + 1, *_bounding(c[idx], model.radii[idx]),
-                      frames[0, spheres.FRAME_OF_LINK[link]], at, at + len(hull)))
-        verts.append(hull)
-        at += len(hull)
-    return c, model.radii, tuple(parts), np.concatenate(verts)
+        parts.append((idx[0], idx[-1] + 1, *_bounding(c[idx], model.radii[idx])))
+    return c, model.radii, tuple(parts)
 
 
 def _bounding(centres: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, float]:

@@ -193,7 +193,7 @@ class BoundedDistances:
         # other Pandas: their spheres, in groups (one per link) with bounding spheres
         first = np.cumsum([0] + [len(o[2]) for o in others])
         parts = [(lo + f, hi + f, gc, gr) for o, f in zip(others, first[:-1], strict=True)
-                 for lo, hi, gc, gr, *_hull in o[3]]
+                 for lo, hi, gc, gr in o[3]]
         groups = np.cumsum([0] + [len(o[3]) for o in others])
         self._world = (np.array([b[1][:3, 3] for b in boxes]).reshape(-1, 3),
                        np.ascontiguousarray(np.array([b[1][:3, :3] for b in boxes])
