@@ -121,3 +121,27 @@ def test_a_refused_pose_is_one_that_neither_ik_reaches(client):
         for q, checks, reached in (arm.ik(pos, orn, P.ik_starts([k, 7], 4)),
                                    arm.analytic_ik(pos, orn, 4)):
             assert q is None and checks == 0 and not reached
+
+
+def test_the_ik_step_answers_refused_poses_without_running_ik(client):
+    """pipeline.domains.ik.solve_ik: a pose the wrist test refuses is NO_IK with no IK run
+    (damped or analytic) and no check; a reachable one runs the IK as before."""
+    from pipeline.domains.ik import solve_ik
+    from pipeline.planning import Status
+
+    rng = np.random.default_rng(3)
+    arm = P.Panda(client, (0.0, 0.0, 0.0))
+    runs = []
+    for name in ("ik", "analytic_ik"):  # the arm's own methods, counted
+        method = getattr(arm, name)
+        setattr(arm, name, lambda *a, _m=method, _n=name, **k: runs.append(_n) or _m(*a, **k))
+    for method in ("damped", "analytic"):
+        for pos, orn in refused_poses(arm, rng, 20):
+            out = solve_ik(arm, pos, orn, [0, 7], 4, method)
+            assert (out.q, out.checks, out.status) == (None, 0, Status.NO_IK)
+    assert runs == []
+    arm.set(P.HOME)
+    _, tcp, R = wrist_and_tcp(arm)
+    for method in ("damped", "analytic"):  # reached (the module's other arms may be in the way)
+        assert solve_ik(arm, tcp, quat(R), [0, 7], 4, method).status is not Status.NO_IK
+    assert runs == ["ik", "analytic_ik"]
