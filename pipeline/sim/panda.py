@@ -30,11 +30,11 @@ IK_POS_TOL, IK_ANG_TOL = 0.005, 0.05
 #: The wrist point (panda_link6's origin, where the axes of joints 5 and 6 meet) seen from
 #: the TCP: whatever joint 7 does, it lies on a circle of radius WRIST_RADIUS about the TCP's
 #: z axis, WRIST_BACK behind the TCP (0.107 m flange + 0.105 m hand; 0.088 m: link 7's
-#: offset).  And it is never further than WRIST_REACH from the shoulder: the URDF puts it at
-#: fixed distances hypot(0.316, 0.0825) from the shoulder to the elbow (joint 4) and
-#: hypot(0.384, 0.0825) from the elbow, so no configuration, within the limits or not,
-#: stretches it further than their sum.  tests/test_wrist_reach.py checks all three numbers
-#: against pybullet's forward kinematics.
+#: offset).  And it is never further than WRIST_REACH from joint 2's origin (the shoulder
+#: joint): the URDF puts it at fixed distances hypot(0.316, 0.0825) from there to the elbow
+#: (joint 4) and hypot(0.384, 0.0825) from the elbow, so no configuration, within the
+#: limits or not, stretches it further than their sum.  tests/test_wrist_reach.py checks all
+#: three numbers against pybullet's forward kinematics.
 WRIST_BACK, WRIST_RADIUS = 0.212, 0.088
 WRIST_REACH = float(np.hypot(0.316, 0.0825) + np.hypot(0.384, 0.0825))
 
@@ -216,8 +216,9 @@ class Panda(Robot):
 def wrist_out_of_reach(shoulder, position, orientation, pos_tol: float = IK_POS_TOL,
                        ang_tol: float = IK_ANG_TOL) -> bool:
     """True when no configuration at all (any joint values) puts the TCP within ``pos_tol``
-    and ``ang_tol`` of ``position``/``orientation`` (x, y, z, w), for an arm whose shoulder
-    is at ``shoulder``: then every IK, damped or analytic, finds nothing it accepts.
+    and ``ang_tol`` of ``position``/``orientation`` (x, y, z, w), for an arm whose joint 2
+    is at ``shoulder`` (:attr:`Panda.joint2`): then every IK, damped or analytic, finds
+    nothing it accepts.
 
     Why it is safe: a configuration whose TCP is within the tolerances has its wrist point
     within pos_tol + 2 sin(ang_tol / 2) |w| of the pose's wrist circle (w: the wrist point in
