@@ -57,7 +57,7 @@ def check_geometry(arm: P.Panda, set_q, shoulder, rng, n: int) -> float:
         assert local[2] == pytest.approx(-P.WRIST_BACK, abs=1e-6)
         assert np.hypot(local[0], local[1]) == pytest.approx(P.WRIST_RADIUS, abs=1e-6)
         d = float(np.linalg.norm(wrist - shoulder()))
-        assert d <= P.WRIST_REACH + 1e-9
+        assert d <= P.WRIST_REACH + 1e-6  # pybullet's link offsets carry float32 rounding
         far = max(far, d)
     return far
 

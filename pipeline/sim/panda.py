@@ -226,9 +226,7 @@ def wrist_out_of_reach(shoulder, position, orientation, pos_tol: float = IK_POS_
     wrist point within WRIST_REACH of the shoulder; so a circle further than their sum (and
     a millimetre for rounding) from the shoulder cannot be met.  Cheap: a few flops, against
     about 1.2 ms for damped IK's restarts on a pose none of them reaches."""
-    x, y, z, w = (float(v) for v in orientation)
-    s = 2.0 / (x * x + y * y + z * z + w * w)
-    axis = np.array([s * (x * z + w * y), s * (y * z - w * x), 1.0 - s * (x * x + y * y)])
+    axis = np.array(pb.getMatrixFromQuaternion(list(orientation))[2::3])  # the TCP's z axis
     centre = np.asarray(position, float) - WRIST_BACK * axis
     v = np.asarray(shoulder, float) - centre
     along = float(v @ axis)
