@@ -8,13 +8,9 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import multiprocessing
-import os
-from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import asdict
 from pathlib import Path
 
-import box_core
 from box_core.stats import (
     INTERVAL_METHOD,
     INTERVAL_NOTE,
@@ -25,6 +21,7 @@ from pipeline.report import figures
 from pipeline.report.conclusions import conclude
 from pipeline.report.data import StoreResults, load, tell_apart
 from pipeline.report.document import Document
+from pipeline.report.jobs import JobsBeside, LoocvJob, cores, store_jobs
 from pipeline.report.renders import render_first_feasible
 
 __all__ = ["StoreResults", "fmt", "load", "make_report", "summary_rows"]
@@ -81,10 +78,12 @@ def _dataset_rows(results) -> tuple[list[str], list[list[str]]]:
     return header, rows
 
 
-def _matrix(res: StoreResults) -> dict:
-    return {"times": res.times, "feasible": res.feasible,
-            "failure_rule": res.settings.get("failure_rule", "magnitude"),
-            "forbidden": res.forbidden}
+def _jobs_of(res: StoreResults, settings: dict) -> tuple[LoocvJob, LoocvJob]:
+    """(learning curve, C tuning) of a store, as :mod:`pipeline.report.jobs` names them."""
+    return store_jobs(res.scores, times=res.times, feasible=res.feasible,
+                      forbidden=res.forbidden, seed=res.seed,
+                      failure_rule=res.settings.get("failure_rule", "magnitude"),
+                      evaluated=res.order, settings=settings)
 
 
 def _jsonable(d: dict) -> dict:
@@ -92,48 +91,49 @@ def _jsonable(d: dict) -> dict:
     return {k: None if isinstance(v, float) and math.isnan(v) else v for k, v in d.items()}
 
 
-def make_report(paths, out_dir: Path, settings: dict, say=print) -> dict[str, Path]:
+def make_report(paths, out_dir: Path, settings: dict, say=print,
+                beside: JobsBeside | None = None) -> dict[str, Path]:
     """Write the report for the stores at ``paths`` into ``out_dir``; return what was written.
 
     ``settings``: the ``report.*`` config (renders, fractions, repeats, c_grid, c_folds,
-    formats).
+    formats).  ``beside``: jobs started earlier (``stage=all`` starts a store's learning
+    curve and C tuning beside ``evaluate``); those of its results that are this report's
+    own jobs are used instead of computing them again.
     """
     results = [load(p) for p in paths]
     tell_apart(results)
-    with _learning_curves_beside(results, settings) as curve_jobs:
-        return _write(results, curve_jobs, Path(out_dir), settings, say)
-
-
-def _curve_settings(res: StoreResults, settings: dict) -> dict:
-    return {"selectors": [s for s in ("box", "eips", "static") if s in res.order],
-            "fractions": settings["fractions"], "repeats": settings["repeats"],
-            "seed": res.seed, **_matrix(res)}
+    jobs = [_jobs_of(res, settings) for res in results]
+    with _curves_beside(jobs, beside) as running:
+        return _write(results, jobs, running, Path(out_dir), settings, say)
 
 
 @contextlib.contextmanager
-def _learning_curves_beside(results, settings: dict):
-    """Futures of the stores' learning curves.  With a second core they are computed in a
-    second process while this one draws the figures and tunes C (the two are the report's
-    longest computations, about 15 s each at 1000 × 162, rows stopping at their first
-    plan); on one core
-    they are computed here first.  The numbers are the same either way: both are seeded
-    functions of the matrix alone."""
-    jobs = [(res.scores, _curve_settings(res, settings)) for res in results]
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    if (cores or 1) < 2:
-        done = []
-        for scores, kwargs in jobs:
-            done.append(Future())
-            done[-1].set_result(box_core.learning_curve(scores, **kwargs))
-        yield done
+def _curves_beside(jobs, beside: JobsBeside | None):
+    """Where the report's jobs run.  With a second core the learning curves not started
+    yet are computed in a second process while this one draws the figures and tunes C (the
+    two are the report's longest computations, about 15 s each at 1000 × 162, rows
+    stopping at their first plan); on one core everything is computed here.  The numbers
+    are the same either way: both are seeded functions of the matrix alone."""
+    missing = [curve for curve, _ in jobs if beside is None or not beside.has(curve)]
+    if not missing or cores() < 2:
+        yield beside
         return
-    with ProcessPoolExecutor(max_workers=1,
-                             mp_context=multiprocessing.get_context("spawn")) as pool:
-        yield [pool.submit(box_core.learning_curve, scores, **kwargs)
-               for scores, kwargs in jobs]
+    running = beside or JobsBeside(1)
+    try:
+        for curve in missing:
+            running.start(curve)
+        yield running
+    finally:
+        if running is not beside:
+            running.close()
 
 
-def _write(results, curve_jobs, out_dir: Path, settings: dict, say) -> dict[str, Path]:
+def _outcome(job: LoocvJob, running: JobsBeside | None):
+    """The job's result: from the process it was started in, else computed here."""
+    return running.result(job) if running is not None and running.has(job) else job.run()
+
+
+def _write(results, jobs, running, out_dir: Path, settings: dict, say) -> dict[str, Path]:
     out_dir.mkdir(parents=True, exist_ok=True)
     formats = settings["formats"]
     doc = Document("BOX: constraint selection in score space")
@@ -182,15 +182,14 @@ def _write(results, curve_jobs, out_dir: Path, settings: dict, say) -> dict[str,
               "ends at 3x the time the first curve reaches that line.")
 
     # C is tuned here while the learning curves are computed beside (their section is first)
-    tunings = [box_core.tune_c(res.scores, grid=settings["c_grid"], folds=settings["c_folds"],
-                               seed=res.seed, **_matrix(res)) for res in results]
+    tunings = [_outcome(tuning, running) for _, tuning in jobs]
 
     doc.heading("Learning curve")
     doc.text("Each repeat holds out 20 % of the instances and trains on growing shares of the "
              f"rest ({settings['repeats']} repeats, planning time only).")
     curves = []
-    for res, job in zip(results, curve_jobs, strict=True):
-        points = job.result()
+    for res, (curve, _) in zip(results, jobs, strict=True):
+        points = _outcome(curve, running)
         curves.append(points)
         doc.heading(res.label, 3)
         doc.table(["selector", "share of rows", "training instances", "mean time (s)",

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from rich.console import Console
 
-from pipeline.configs import Stage
+from pipeline.configs import RAWPLANNER, Stage
 from pipeline.execution import connect_first
 from pipeline.stages.constraints import stage_constraints
 from pipeline.stages.evaluate import stage_evaluate
@@ -66,10 +66,8 @@ def output_dir(configured: str | None, name: str) -> Path:
         return Path.cwd() / "outputs" / name
 
 
-def stage_report(run: Run) -> None:
-    from pipeline.report import make_report
-
-    settings = run.plain["report"]
+def check_report_settings(settings: dict) -> None:
+    """Refuse ``report.*`` values the report cannot use (ValueError)."""
     if settings["renders"] < 0 or settings["repeats"] < 1 or settings["c_folds"] < 2:
         raise ValueError("report.renders must be >= 0, report.repeats >= 1 and "
                          "report.c_folds >= 2")
@@ -77,8 +75,48 @@ def stage_report(run: Run) -> None:
     if bad or "png" not in settings["formats"]:
         raise ValueError(f"report.formats must include png and may add svg or pdf, got "
                          f"{settings['formats']}")
-    paths = [Path(p).expanduser().absolute() for p in settings["stores"]] or [run.path]
-    make_report(paths, output_dir(settings["dir"], "report"), settings, say=run.say)
+
+
+def report_paths(run: Run) -> list[Path]:
+    """The stores a report of this run covers: ``report.stores``, else the run's own."""
+    return [Path(p).expanduser().absolute() for p in run.plain["report"]["stores"]] or [
+        run.path]
+
+
+def stage_report(run: Run) -> None:
+    from pipeline.report import make_report
+
+    settings = run.plain["report"]
+    check_report_settings(settings)
+    make_report(report_paths(run), output_dir(settings["dir"], "report"), settings,
+                say=run.say, beside=run.report_jobs)
+
+
+def start_report_jobs(run: Run) -> None:
+    """``stage=all``, before ``evaluate`` runs: start the report's learning curve and C
+    tuning of this run's store in two other processes (:mod:`pipeline.report.jobs`).  They
+    need the finished score matrix only, and ``evaluate`` leaves part of the second core
+    idle; the report then takes their results.  Not where the report covers other stores,
+    or on one core.  (``Run`` has checked the ``report.*`` values already.)"""
+    from pipeline.evaluation import own_constraints
+    from pipeline.report.jobs import JobsBeside, cores, store_jobs
+
+    settings = run.plain["report"]
+    if cores() < 2 or run.path not in report_paths(run):
+        return
+    store, evaluate = run.store, run.plain["evaluate"]
+    scores, feasible, times, _ = store.score_matrix()
+    names = [s for s in evaluate["selectors"] if s != RAWPLANNER]
+    forbidden = own_constraints(store) if evaluate.get("exclude_own_constraints", True) else None
+    jobs = store_jobs(scores, times=times, feasible=feasible, forbidden=forbidden,
+                      seed=run.cfg.seed, failure_rule=evaluate["failure_rule"],
+                      evaluated=names, settings=settings)
+    run.report_jobs = JobsBeside(len(jobs), niceness=19)
+    run.on_close(run.report_jobs.close)
+    for job in jobs:
+        run.report_jobs.start(job)
+    run.say("report: its learning curve and C tuning start now, beside evaluate, at the "
+            "lowest priority")
 
 
 def stage_solve(run: Run) -> None:
@@ -102,7 +140,7 @@ def run_pipeline(cfg, console: Console) -> None:
     try:
         writing = plan_stages(stage)
         if writing:
-            _write_stages(run, writing)
+            _write_stages(run, writing, start_report=stage is Stage.all)
         if stage in (Stage.report, Stage.all):
             stage_report(run)
         if stage is Stage.solve:
@@ -111,10 +149,12 @@ def run_pipeline(cfg, console: Console) -> None:
         run.close()
 
 
-def _write_stages(run: Run, names) -> None:
+def _write_stages(run: Run, names, start_report: bool = False) -> None:
     """Run the store-writing stages ``names``: checked read-only first, written (under the
     lock) only from the first stage that has work.  Metadata documents are checked before
-    any array is read: a damaged one is repaired (or refused) first."""
+    any array is read: a damaged one is repaired (or refused) first.  ``start_report``:
+    a report follows, whose longest jobs start beside ``evaluate``
+    (:func:`start_report_jobs`)."""
     store = run.open_for_reading()
     try:
         if store is not None and metadata.check(store, run.domain):
@@ -133,6 +173,8 @@ def _write_stages(run: Run, names) -> None:
             if not run.writing:
                 run.say(f"{name}: already complete; nothing to do")
                 continue
+            if name == "evaluate" and start_report:
+                start_report_jobs(run)
             STAGES[name](run)
             run.store.consolidate()  # if this stage changed a metadata document
         if run.wrote:

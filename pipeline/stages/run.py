@@ -73,6 +73,8 @@ class Run:
         self._todo: dict[str, str | None] = {}
         self._stack = contextlib.ExitStack()
         self._client = None
+        #: the report's jobs started early (``stage=all``: pipeline.report.jobs), or None
+        self.report_jobs = None
 
     # -- resources -------------------------------------------------------------------------
     def open_for_reading(self) -> ScoreStore | None:
@@ -156,6 +158,10 @@ class Run:
 
     def close(self) -> None:
         self._stack.close()
+
+    def on_close(self, release) -> None:
+        """Call ``release()`` when the run closes (before what was opened earlier)."""
+        self._stack.callback(release)
 
     def context(self) -> StageContext:
         """What the evaluate and solve stages see of this run."""
