@@ -35,6 +35,19 @@ def own_constraints(store) -> np.ndarray | None:
     return source[None, :] == np.arange(n)[:, None]
 
 
+def evaluated_selectors(settings: dict) -> list[str]:
+    """The selectors box_core runs for these ``evaluate.*`` settings, in order (RAWPLANNER
+    is not one: its times come from the store's raw stage)."""
+    return [s for s in dict.fromkeys(settings["selectors"]) if s != RAWPLANNER]
+
+
+def hidden_constraints(own: np.ndarray | None, settings: dict) -> np.ndarray | None:
+    """What leave-one-out hides from each held-out row (``forbidden``): its own
+    constraints ``own`` (:func:`own_constraints`) unless
+    ``evaluate.exclude_own_constraints`` is false."""
+    return own if settings.get("exclude_own_constraints", True) else None
+
+
 def instance_features(store) -> np.ndarray | None:
     """The store's instance features (n, q) for the contextual selectors, or None when its
     domain declares none (those selectors are then BOX)."""
@@ -77,12 +90,11 @@ def evaluate(ctx: StageContext) -> None:
             ctx.say("evaluate: already complete with these settings; nothing to do")
             print_stored_summary(ctx)
             return
-    names = list(dict.fromkeys(settings["selectors"]))
-    with_raw = RAWPLANNER in names
-    names = [s for s in names if s != RAWPLANNER]
+    names = evaluated_selectors(settings)
+    with_raw = RAWPLANNER in settings["selectors"]
     scores, feasible, times, theta = store.score_matrix()
     own = own_constraints(store)
-    hide = own if settings.get("exclude_own_constraints", True) else None
+    hide = hidden_constraints(own, settings)
     try:
         result = box_core.loocv(scores, times=times, feasible=feasible, features=theta,
                                 selectors=names, k=settings["k"], seed=ctx.seed,

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 import box_core
-from pipeline.report.jobs import JobsBeside, LoocvJob, cores, store_jobs
+from pipeline.cluster import available_cores
+from pipeline.report.jobs import JobsBeside, LoocvJob, store_jobs
 from tests import pipeline_runs as pr
 
 SETTINGS = {"fractions": [0.5, 1.0], "repeats": 2, "c_grid": [0.0, 1.96], "c_folds": 2}
@@ -79,7 +80,7 @@ def test_stage_all_starts_the_report_s_jobs_beside_evaluate_with_the_report_s_nu
     """The session's stage=all run took its learning curve and C tuning from the jobs it
     started beside evaluate; stage=report on the same store computes them itself (the
     curve in a second process, C here): the same numbers, bit for bit."""
-    if cores() < 2:
+    if available_cores() < 2:
         pytest.skip("one core: stage=all starts nothing beside evaluate")
     store, report, res = made_run
     out = res.stdout + res.stderr

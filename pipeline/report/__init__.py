@@ -21,7 +21,7 @@ from pipeline.report import figures
 from pipeline.report.conclusions import conclude
 from pipeline.report.data import StoreResults, load, tell_apart
 from pipeline.report.document import Document
-from pipeline.report.jobs import JobsBeside, LoocvJob, cores, store_jobs
+from pipeline.report.jobs import JobsBeside, LoocvJob, store_jobs
 from pipeline.report.renders import render_first_feasible
 
 __all__ = ["StoreResults", "fmt", "load", "make_report", "summary_rows"]
@@ -114,8 +114,10 @@ def _curves_beside(jobs, beside: JobsBeside | None):
     two are the report's longest computations, about 15 s each at 1000 × 162, rows
     stopping at their first plan); on one core everything is computed here.  The numbers
     are the same either way: both are seeded functions of the matrix alone."""
+    from pipeline.cluster import available_cores
+
     missing = [curve for curve, _ in jobs if beside is None or not beside.has(curve)]
-    if not missing or cores() < 2:
+    if not missing or available_cores() < 2:
         yield beside
         return
     running = beside or JobsBeside(1)

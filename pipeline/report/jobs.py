@@ -64,13 +64,6 @@ def store_jobs(scores, *, times, feasible, forbidden, seed: int, failure_rule: s
     return curve, tuning
 
 
-def cores() -> int:
-    """The cores this process may run on."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
-
-
 class JobsBeside:
     """Jobs running in ``processes`` spawned processes, their results by job key.
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from rich.console import Console
 
-from pipeline.configs import RAWPLANNER, Stage
+from pipeline.configs import Stage
 from pipeline.execution import connect_first
 from pipeline.stages.constraints import stage_constraints
 from pipeline.stages.evaluate import stage_evaluate
@@ -66,17 +66,6 @@ def output_dir(configured: str | None, name: str) -> Path:
         return Path.cwd() / "outputs" / name
 
 
-def check_report_settings(settings: dict) -> None:
-    """Refuse ``report.*`` values the report cannot use (ValueError)."""
-    if settings["renders"] < 0 or settings["repeats"] < 1 or settings["c_folds"] < 2:
-        raise ValueError("report.renders must be >= 0, report.repeats >= 1 and "
-                         "report.c_folds >= 2")
-    bad = set(settings["formats"]) - {"png", "svg", "pdf"}
-    if bad or "png" not in settings["formats"]:
-        raise ValueError(f"report.formats must include png and may add svg or pdf, got "
-                         f"{settings['formats']}")
-
-
 def report_paths(run: Run) -> list[Path]:
     """The stores a report of this run covers: ``report.stores``, else the run's own."""
     return [Path(p).expanduser().absolute() for p in run.plain["report"]["stores"]] or [
@@ -87,7 +76,13 @@ def stage_report(run: Run) -> None:
     from pipeline.report import make_report
 
     settings = run.plain["report"]
-    check_report_settings(settings)
+    if settings["renders"] < 0 or settings["repeats"] < 1 or settings["c_folds"] < 2:
+        raise ValueError("report.renders must be >= 0, report.repeats >= 1 and "
+                         "report.c_folds >= 2")
+    bad = set(settings["formats"]) - {"png", "svg", "pdf"}
+    if bad or "png" not in settings["formats"]:
+        raise ValueError(f"report.formats must include png and may add svg or pdf, got "
+                         f"{settings['formats']}")
     make_report(report_paths(run), output_dir(settings["dir"], "report"), settings,
                 say=run.say, beside=run.report_jobs)
 
@@ -98,19 +93,20 @@ def start_report_jobs(run: Run) -> None:
     need the finished score matrix only, and ``evaluate`` leaves part of the second core
     idle; the report then takes their results.  Not where the report covers other stores,
     or on one core.  (``Run`` has checked the ``report.*`` values already.)"""
-    from pipeline.evaluation import own_constraints
-    from pipeline.report.jobs import JobsBeside, cores, store_jobs
+    from pipeline.cluster import available_cores
+    from pipeline.evaluation import evaluated_selectors, hidden_constraints, own_constraints
+    from pipeline.report.jobs import JobsBeside, store_jobs
 
     settings = run.plain["report"]
-    if cores() < 2 or run.path not in report_paths(run):
+    if available_cores() < 2 or run.path not in report_paths(run):
         return
     store, evaluate = run.store, run.plain["evaluate"]
     scores, feasible, times, _ = store.score_matrix()
-    names = [s for s in evaluate["selectors"] if s != RAWPLANNER]
-    forbidden = own_constraints(store) if evaluate.get("exclude_own_constraints", True) else None
-    jobs = store_jobs(scores, times=times, feasible=feasible, forbidden=forbidden,
-                      seed=run.cfg.seed, failure_rule=evaluate["failure_rule"],
-                      evaluated=names, settings=settings)
+    jobs = store_jobs(scores, times=times, feasible=feasible,
+                      forbidden=hidden_constraints(own_constraints(store), evaluate),
+                      seed=run.cfg.seed,
+                      failure_rule=evaluate["failure_rule"],
+                      evaluated=evaluated_selectors(evaluate), settings=settings)
     run.report_jobs = JobsBeside(len(jobs), niceness=19)
     run.on_close(run.report_jobs.close)
     for job in jobs:
