@@ -102,3 +102,66 @@ def test_lost_input_tables_in_s3_are_rebuilt_without_recomputing_results(s3, mad
     assert "scores: already complete" in res.stdout
     assert CliRunner().invoke(app, ["status", url]).exit_code == 0
     assert pr.same_matrix(pr.matrix(made[0]), _matrix(url))
+
+
+def _requests(monkeypatch) -> list[tuple[str, str]]:
+    """(operation, key) of every request this process sends to S3 from now on, recorded
+    where s3fs hands each to botocore (the real server answers them all)."""
+    import s3fs
+
+    sent = []
+    send = s3fs.S3FileSystem._call_s3
+
+    async def recorded(self, method, *args, **kwargs):
+        sent.append((method, kwargs.get("Key") or kwargs.get("Prefix") or ""))
+        return await send(self, method, *args, **kwargs)
+
+    monkeypatch.setattr(s3fs.S3FileSystem, "_call_s3", recorded)
+    return sent
+
+
+def test_each_read_is_one_request_and_each_array_document_one_write(s3, tmp_path,
+                                                                     monkeypatch):
+    """No HEAD before a GET (s3fs's size probe: it doubled every read), no existence check
+    of a parent group's document the run already read, an array's attributes in its first
+    document (a data array's ``coordinates`` listing in a second, once they exist); ``box
+    status`` writes nothing and reads each object without probing it first."""
+    from hydra import compose, initialize_config_dir
+    from rich.console import Console
+
+    from pipeline.cli import app
+    from pipeline.configs import CONF_DIR, register_configs
+    from pipeline.stages import run_pipeline
+
+    url = f"s3://{BUCKET}/runs/requests.zarr"
+    root_doc = "runs/requests.zarr/zarr.json"  # asked for once, before the run first reads it
+    register_configs()
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = compose(config_name="config", overrides=[*pr.SMALL, f"store.path={url}",
+                                                       "stage=instances"])
+    sent = _requests(monkeypatch)
+    monkeypatch.chdir(tmp_path)
+    run_pipeline(cfg, Console(file=open(os.devnull, "w")))  # noqa: SIM115
+    probed = {key for op, key in sent if op == "head_object"}
+    assert not {key for op, key in sent if op == "get_object"} & probed - {root_doc}, sent
+    assert not [key for key in probed if "/c/" in key], sent  # chunks: written, never probed
+    written = [key for op, key in sent if op == "put_object" and key.endswith("/zarr.json")]
+    docs = {key: json.loads(s3_read(key)) for key in written}
+    arrays = {key: doc for key, doc in docs.items() if doc["node_type"] == "array"}
+    assert len(arrays) >= 3, written  # the instances' arrays and their integrity table
+    for key, doc in arrays.items():  # a data array's coordinates are named once they exist
+        assert written.count(key) == 1 + ("coordinates" in doc["attributes"]), (key, written)
+
+    sent.clear()
+    status = CliRunner().invoke(app, ["status", url, "--json"])
+    assert status.exit_code == 0, status.output
+    read = {key for op, key in sent if op == "get_object"}
+    assert len(read) > 20 and not read & {key for op, key in sent if op == "head_object"}, sent
+    assert {op for op, _ in sent} <= {"get_object", "list_objects_v2", "head_object"}, sent
+
+
+def s3_read(key: str) -> bytes:
+    import s3fs
+
+    return s3fs.S3FileSystem(endpoint_url=os.environ["AWS_ENDPOINT_URL"]).cat_file(
+        f"{BUCKET}/{key}")

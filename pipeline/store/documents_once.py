@@ -83,6 +83,12 @@ class DocumentsReadOnce(zarr.storage.WrapperStore):
             await self._store.set(key, value)
 
     async def set_if_not_exists(self, key, value) -> None:
+        """Zarr writes each parent group's document this way whenever it creates an array;
+        where the view remembers that document as present, nothing is asked of the storage
+        (an existence check is a round trip in object storage)."""
+        documents = self._shared.documents
+        if documents is not None and documents.get(key) is not None:
+            return
         async with self._writing(key):
             await self._store.set_if_not_exists(key, value)
 

@@ -27,6 +27,14 @@ from pipeline.store.storage_errors import translated
 #: cannot be reached ends the command with one line within seconds.
 S3_CONFIG = {"connect_timeout": 5, "retries": {"mode": "standard"}}
 
+#: s3fs reads an object whole in one GET only when its ``max_concurrency`` is 1; above 1 (its
+#: default, 10) it first asks for the object's size (a HEAD, and for a missing object a
+#: listing too), to split large objects into concurrent ranged reads.  A store's objects
+#: are small (documents, compressed chunks of one block), so that split never happens and
+#: the extra requests doubled every read's round trips.  ``store.storage_options`` may set
+#: another value.
+S3_READ_CONCURRENCY = 1
+
 
 class URL(str):
     """A store URL that reads like a path where callers need one (``.name``, ``/ child``)."""
@@ -81,7 +89,8 @@ class Location:
         return opts
 
     def _fsspec_options(self) -> dict:
-        """:meth:`options`, for s3 with :data:`S3_CONFIG` where not configured."""
+        """:meth:`options`, for s3 with :data:`S3_CONFIG` and :data:`S3_READ_CONCURRENCY`
+        where not configured."""
         opts = self.options()
         if self.scheme in ("s3", "s3a"):
             config = dict(opts.get("config_kwargs") or {})
@@ -89,6 +98,7 @@ class Location:
             if not (os.environ.get("AWS_RETRY_MODE") or os.environ.get("AWS_MAX_ATTEMPTS")):
                 config.setdefault("retries", S3_CONFIG["retries"])
             opts["config_kwargs"] = config
+            opts.setdefault("max_concurrency", S3_READ_CONCURRENCY)
         return opts
 
     @property

@@ -308,9 +308,8 @@ class ScoreStore(Readers, BlockWrites, Verification):
         parent = self.root.require_group(group)
         arr = parent.create_array(name, shape=tuple(shape), chunks=tuple(chunks), dtype=dtype,
                                   fill_value=fill, dimension_names=tuple(dims),
-                                  compressors=CODECS, overwrite=True, config=WRITE_CONFIG)
-        if attrs:
-            arr.attrs.update(attrs)
+                                  compressors=CODECS, overwrite=True, config=WRITE_CONFIG,
+                                  attributes=attrs or None)  # one write of its document
         self._arrays[key] = arr
         return arr
 
