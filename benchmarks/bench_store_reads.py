@@ -10,7 +10,8 @@ times ``status.collect`` and an in-process ``run_pipeline`` of ``stage=generate`
 ``stage=evaluate`` on the finished store, and of ``stage=generate`` after the consolidated
 copy in the root document was made stale (a "repair re-run": the copy is written again,
 then every stage has nothing to do), ``--repeats`` times each after one warm-up, and
-counts the reads (``get``) and listings (``list*``) Zarr makes of the store.  The variants
+counts the reads (``get``) and listings (``list*``) Zarr makes of the store, and in S3 the
+requests s3fs sends for them.  The variants
 alternate ``--rounds`` times; printed: medians over all repeats, and the ratio.
 
 Run: python benchmarks/bench_store_reads.py [--rounds 3] [--repeats 5] [--baseline-rev e205980]
@@ -52,7 +53,8 @@ def child(job: dict) -> None:
     from pipeline.store import status
     from tests import pipeline_runs as pr
 
-    calls = {"get": 0, "list": 0}
+    calls = {"get": 0, "list": 0, "requests": 0}
+    _count_s3_requests(calls)
     for cls in (zarr.storage.LocalStore, zarr.storage.FsspecStore):
         for name, kind in (("get", "get"), ("list", "list"), ("list_prefix", "list"),
                            ("list_dir", "list")):
@@ -95,6 +97,21 @@ def child(job: dict) -> None:
     print(json.dumps({"times": times, "reads": reads}))
 
 
+def _count_s3_requests(calls: dict) -> None:
+    """Count in ``calls["requests"]`` every request s3fs sends (where installed)."""
+    try:
+        import s3fs
+    except ImportError:
+        return
+    send = s3fs.S3FileSystem._call_s3
+
+    async def counted(self, *args, **kwargs):
+        calls["requests"] += 1
+        return await send(self, *args, **kwargs)
+
+    s3fs.S3FileSystem._call_s3 = counted
+
+
 def _stale_copy(url: str):
     """A function that makes the consolidated copy of ``scores/score`` in the root document
     of the store at ``url`` differ from the array's own document: the next run repairs it
@@ -127,13 +144,17 @@ def measure(where: str, url: str, variants: dict[str, Path], args) -> None:
         (next(iter(found.items())), (None, None))
     for kind in TIMED:
         a = statistics.median(new[kind])
-        line = (f"{where:22s} {kind:16s} {a * 1e3:9.1f} ms {reads[this][kind]['get']:5d} "
-                f"reads {reads[this][kind]['list']:3d} lists")
+        line = f"{where:22s} {kind:16s} {a * 1e3:9.1f} ms {_counts(reads[this][kind])}"
         if base is not None:
             b = statistics.median(old[kind])
-            line += (f" | {b * 1e3:9.1f} ms {reads[base][kind]['get']:5d} reads "
-                     f"{reads[base][kind]['list']:3d} lists | {b / a:5.2f}x")
+            line += f" | {b * 1e3:9.1f} ms {_counts(reads[base][kind])} | {b / a:5.2f}x"
         print(line)
+
+
+def _counts(one: dict) -> str:
+    """Zarr's reads and listings, and where the store is in S3 the requests they took."""
+    s3 = f" {one['requests']:5d} S3 requests" if one.get("requests") else ""
+    return f"{one['get']:5d} reads {one['list']:3d} lists{s3}"
 
 
 def main() -> None:
