@@ -100,8 +100,14 @@ class DocumentsReadOnce(zarr.storage.WrapperStore):
             await self._store.delete(key)
 
     async def delete_dir(self, prefix) -> None:
+        """Zarr removes a node's folder before it creates a node there (``overwrite``), so
+        also where there is none; a folder is removed only if a listing finds something in
+        it (in S3 one or two listings, where s3fs's removal of nothing costs five requests).
+        """
         async with self._writing(prefix, folder=True):  # a node removed, or its chunks
-            await self._store.delete_dir(prefix)
+            async for _ in self._store.list_dir(prefix):
+                await self._store.delete_dir(prefix)
+                return
 
     async def clear(self) -> None:
         async with self._writing(None):
