@@ -1,8 +1,8 @@
 """A real S3-compatible server process for tests on 127.0.0.1: moto's server app, as its
 standalone ``moto_server`` runs it, handling one request at a time
 (tests/moto_atomic_server.py), configured the way AWS users expect (environment
-variables), and readers of stores in it.  Test modules make their own fixture of
-:func:`serve` (module-scoped)."""
+variables), readers of stores in it, and a record of the requests this process sends.  Test
+modules make their own fixture of :func:`serve` (module-scoped)."""
 
 from __future__ import annotations
 
@@ -89,3 +89,31 @@ def done(url: str) -> int:
         return int(_group(url)["scores/done"][...].sum())
     except Exception:  # noqa: BLE001 (not created yet)
         return 0
+
+
+@contextlib.contextmanager
+def requests_sent():
+    """(operation, key) of every request this process sends to S3 while inside, recorded
+    where s3fs hands each to botocore (the server answers them all)."""
+    import s3fs
+
+    sent: list[tuple[str, str]] = []
+    send = s3fs.S3FileSystem._call_s3
+
+    async def recorded(self, method, *args, **kwargs):
+        sent.append((method, kwargs.get("Key") or kwargs.get("Prefix") or ""))
+        return await send(self, method, *args, **kwargs)
+
+    s3fs.S3FileSystem._call_s3 = recorded
+    try:
+        yield sent
+    finally:
+        s3fs.S3FileSystem._call_s3 = send
+
+
+def read_object(key: str) -> bytes:
+    """The bytes of object ``key`` of :data:`BUCKET`."""
+    import s3fs
+
+    return s3fs.S3FileSystem(endpoint_url=os.environ["AWS_ENDPOINT_URL"]).cat_file(
+        f"{BUCKET}/{key}")

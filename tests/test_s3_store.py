@@ -11,7 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from tests import pipeline_runs as pr
-from tests.s3_server import BUCKET, serve
+from tests.s3_server import BUCKET, read_object, requests_sent, serve
 from tests.s3_server import done as _done
 from tests.s3_server import matrix as _matrix
 
@@ -104,24 +104,8 @@ def test_lost_input_tables_in_s3_are_rebuilt_without_recomputing_results(s3, mad
     assert pr.same_matrix(pr.matrix(made[0]), _matrix(url))
 
 
-def _requests(monkeypatch) -> list[tuple[str, str]]:
-    """(operation, key) of every request this process sends to S3 from now on, recorded
-    where s3fs hands each to botocore (the real server answers them all)."""
-    import s3fs
 
-    sent = []
-    send = s3fs.S3FileSystem._call_s3
-
-    async def recorded(self, method, *args, **kwargs):
-        sent.append((method, kwargs.get("Key") or kwargs.get("Prefix") or ""))
-        return await send(self, method, *args, **kwargs)
-
-    monkeypatch.setattr(s3fs.S3FileSystem, "_call_s3", recorded)
-    return sent
-
-
-def test_each_read_is_one_request_and_each_array_document_one_write(s3, tmp_path,
-                                                                     monkeypatch):
+def test_each_read_is_one_request_and_no_new_array_is_probed(s3, tmp_path, monkeypatch):
     """No HEAD before a GET (s3fs's size probe: it doubled every read), no existence check
     of a parent group's document the run already read, no removal of a new array's folder
     where a listing finds nothing (s3fs probes it), an array's attributes in its first
@@ -140,29 +124,22 @@ def test_each_read_is_one_request_and_each_array_document_one_write(s3, tmp_path
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = compose(config_name="config", overrides=[*pr.SMALL, f"store.path={url}",
                                                        "stage=instances"])
-    sent = _requests(monkeypatch)
     monkeypatch.chdir(tmp_path)
-    run_pipeline(cfg, Console(file=open(os.devnull, "w")))  # noqa: SIM115
+    with requests_sent() as sent:
+        run_pipeline(cfg, Console(file=open(os.devnull, "w")))  # noqa: SIM115
     probed = {key for op, key in sent if op == "head_object"}
     assert not {key for op, key in sent if op == "get_object"} & probed - {root_doc}, sent
     assert probed <= {root_doc, "runs/requests.zarr"}, sent  # no array's folder probed
     written = [key for op, key in sent if op == "put_object" and key.endswith("/zarr.json")]
-    docs = {key: json.loads(s3_read(key)) for key in written}
+    docs = {key: json.loads(read_object(key)) for key in written}
     arrays = {key: doc for key, doc in docs.items() if doc["node_type"] == "array"}
     assert len(arrays) >= 3, written  # the instances' arrays and their integrity table
     for key, doc in arrays.items():  # a data array's coordinates are named once they exist
         assert written.count(key) == 1 + ("coordinates" in doc["attributes"]), (key, written)
 
-    sent.clear()
-    status = CliRunner().invoke(app, ["status", url, "--json"])
+    with requests_sent() as sent:
+        status = CliRunner().invoke(app, ["status", url, "--json"])
     assert status.exit_code == 0, status.output
     read = {key for op, key in sent if op == "get_object"}
     assert len(read) > 20 and not read & {key for op, key in sent if op == "head_object"}, sent
     assert {op for op, _ in sent} <= {"get_object", "list_objects_v2", "head_object"}, sent
-
-
-def s3_read(key: str) -> bytes:
-    import s3fs
-
-    return s3fs.S3FileSystem(endpoint_url=os.environ["AWS_ENDPOINT_URL"]).cat_file(
-        f"{BUCKET}/{key}")
