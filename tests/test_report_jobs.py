@@ -78,7 +78,8 @@ def test_closing_stops_a_job_that_still_runs():
 def test_stage_all_starts_the_report_s_jobs_beside_evaluate_with_the_report_s_numbers(
         made_run, tmp_path):
     """The session's stage=all run took its learning curve and C tuning from the jobs it
-    started beside evaluate; stage=report on the same store computes them itself (the
+    started beside evaluate (it says so: a difference in how their inputs were derived would
+    silently compute both again); stage=report on the same store computes them itself (the
     curve in a second process, C here): the same numbers, bit for bit."""
     if available_cores() < 2:
         pytest.skip("one core: stage=all starts nothing beside evaluate")
@@ -86,6 +87,8 @@ def test_stage_all_starts_the_report_s_jobs_beside_evaluate_with_the_report_s_nu
     out = res.stdout + res.stderr
     assert out.count("learning curve and C tuning start now, beside evaluate") == 1
     assert out.index("beside evaluate") < out.index(f"report: {report}")  # before the report
+    # ... and the report took both: their inputs, derived before evaluate, are its own
+    assert "report: 2 of its 2 leave-one-out jobs were started beside evaluate" in out
     again = pr.run(store, "stage=report", f"report.dir={tmp_path / 'r'}")
     assert again.returncode == 0, again.stderr
     assert "beside evaluate" not in again.stdout + again.stderr

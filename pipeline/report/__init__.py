@@ -103,6 +103,10 @@ def make_report(paths, out_dir: Path, settings: dict, say=print,
     results = [load(p) for p in paths]
     tell_apart(results)
     jobs = [_jobs_of(res, settings) for res in results]
+    early = sum(beside.has(job) for pair in jobs for job in pair) if beside else 0
+    if early:  # the jobs started beside evaluate are this report's own (same inputs)
+        say(f"report: {early} of its {2 * len(jobs)} leave-one-out jobs were started "
+            "beside evaluate")
     with _curves_beside(jobs, beside) as running:
         return _write(results, jobs, running, Path(out_dir), settings, say)
 
