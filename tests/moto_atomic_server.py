@@ -13,8 +13,13 @@ from __future__ import annotations
 import sys
 import threading
 
-from moto.server import DomainDispatcherApplication, MotoRequestHandler, create_backend_app
-from werkzeug.serving import run_simple
+from moto.server import DomainDispatcherApplication, create_backend_app
+from werkzeug.serving import WSGIRequestHandler, run_simple
+
+try:  # moto >= 5.2.5 serves through its own handler (headers with underscores kept)
+    from moto.server import MotoRequestHandler as RequestHandler
+except ImportError:  # earlier moto 5 releases run werkzeug's own, as their moto_server does
+    RequestHandler = WSGIRequestHandler
 
 
 class OneAtATime:
@@ -36,7 +41,7 @@ class OneAtATime:
 
 def main(host: str, port: int) -> None:
     app = DomainDispatcherApplication(create_backend_app)
-    run_simple(host, port, OneAtATime(app), threaded=True, request_handler=MotoRequestHandler)
+    run_simple(host, port, OneAtATime(app), threaded=True, request_handler=RequestHandler)
 
 
 if __name__ == "__main__":

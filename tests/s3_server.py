@@ -12,6 +12,7 @@ import shutil
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -27,6 +28,12 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def _tail(log, lines: int = 3) -> str:
+    """The last lines a process wrote to the file ``log``."""
+    log.seek(0)
+    return " | ".join(log.read().decode(errors="replace").strip().splitlines()[-lines:])
+
+
 @contextlib.contextmanager
 def serve():
     """The server's environment (AWS_ENDPOINT_URL, credentials) with a fresh bucket
@@ -37,10 +44,12 @@ def serve():
         pytest.skip('moto_server is not installed (pip install -e ".[test]")')
     pytest.importorskip("s3fs", reason='s3fs is not installed (pip install -e ".[test]")')
     port = free_port()
-    # moto's server app, one request at a time: S3's atomic conditional writes (see there)
+    # moto's server app, one request at a time: S3's atomic conditional writes (see there);
+    # its log goes to a file (it logs every request), whose end says why it exited, if it did
+    log = tempfile.TemporaryFile()
     proc = subprocess.Popen([sys.executable, str(Path(__file__).with_name(
         "moto_atomic_server.py")), "127.0.0.1", str(port)],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                            stdout=subprocess.DEVNULL, stderr=log)
     env = {"AWS_ENDPOINT_URL": f"http://127.0.0.1:{port}", "AWS_ACCESS_KEY_ID": "testing",
            "AWS_SECRET_ACCESS_KEY": "testing", "AWS_DEFAULT_REGION": "us-east-1"}
     saved = {k: os.environ.get(k) for k in env}
@@ -48,7 +57,7 @@ def serve():
     try:
         deadline = time.monotonic() + 60
         while True:
-            assert proc.poll() is None, "moto_server exited"
+            assert proc.poll() is None, f"moto_server exited: {_tail(log)}"
             try:
                 socket.create_connection(("127.0.0.1", port), timeout=1).close()
                 break
@@ -62,6 +71,7 @@ def serve():
     finally:
         proc.terminate()
         proc.wait(timeout=30)
+        log.close()
         for k, v in saved.items():
             if v is None:
                 os.environ.pop(k, None)
