@@ -42,8 +42,9 @@ def _as_nobody(argv: list[str], cwd: Path) -> subprocess.CompletedProcess:
     cmd = [setpriv, "--reuid=65534", "--regid=65534", "--clear-groups", *argv]
     probe = subprocess.run([*cmd[:4], sys.executable, "-c", "import pipeline.stages"],
                            capture_output=True, text=True, env=pr.env(), cwd=cwd)
-    if probe.returncode != 0:
-        pytest.skip(f"user nobody cannot import the package here: {probe.stderr[-200:]}")
+    if probe.returncode != 0:  # the reason on one line: the error the import ended with
+        error = (probe.stderr.strip().splitlines() or ["(no message)"])[-1]
+        pytest.skip(f"user nobody cannot import the package here: {error}")
     return subprocess.run(cmd, capture_output=True, text=True, env=pr.env(), cwd=cwd,
                           timeout=600)
 
