@@ -53,6 +53,8 @@ class PlanResult:
 
 def path_length(path: np.ndarray) -> float:
     """Euclidean length of a piecewise-linear path through configuration space."""
+    path = np.asarray(path, float)
     if len(path) < 2:
         return 0.0
-    return float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+    step = path[1:] - path[:-1]  # np.linalg.norm(np.diff(path, axis=0), axis=1), the same
+    return float(np.sqrt(np.add.reduce(step * step, axis=1)).sum())  # numbers, less overhead

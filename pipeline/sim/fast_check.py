@@ -330,10 +330,17 @@ class SphereRobot:
         such bound)."""
         hull_arrays = _hull_arrays(hulls, len(groups))
         groups = list(groups) or [(0, np.zeros((1, 3)), np.array([-1.0]), False)]
-        root = _root(groups, boxes, reach)
-        lo = np.cumsum([0] + [len(g[2]) for g in groups])
-        bounds = [_bounding(c, r) for _, c, r, _ in groups]
-        gc, gr = [b[0] for b in bounds], [b[1] for b in bounds]
+        sizes = [len(g[2]) for g in groups]
+        lo = np.cumsum([0] + sizes)
+        centres = np.concatenate([g[1] for g in groups])
+        radii = np.concatenate([g[2] for g in groups])
+        if min(sizes):  # every group has spheres: all groups' bounds at once
+            gc, gr = _group_bounds(centres, radii, lo)
+            root = _root(groups, boxes, reach, (centres, radii, lo))
+        else:
+            bounds = [_bounding(c, r) for _, c, r, _ in groups]
+            gc, gr = [b[0] for b in bounds], [b[1] for b in bounds]
+            root = _root(groups, boxes, reach)
         # parts riding on one frame keep their distance: a pair whose spheres are apart now
         # is apart in every configuration, and the scan need not test it (its answer would
         # be "apart" row after row); the proofs still see every pair (``_inner_vs_boxes``)
@@ -344,8 +351,7 @@ class SphereRobot:
         pbb = np.array([p[1] for p in pairs], dtype=np.int64)
         return cls(np.array([g[0] for g in groups], dtype=np.int64), np.array(gc),
                    np.array(gr), lo[:-1].astype(np.int64), lo[1:].astype(np.int64),
-                   np.array([g[3] for g in groups], dtype=np.bool_),
-                   np.concatenate([g[1] for g in groups]), np.concatenate([g[2] for g in groups]),
+                   np.array([g[3] for g in groups], dtype=np.bool_), centres, radii,
                    pa, pbb, np.array([b[0] for b in boxes], dtype=np.int64),
                    np.array([b[1][:3] for b in boxes]).reshape(-1, 3, 4),
                    np.array([b[2] for b in boxes]).reshape(-1, 3) + BOX_MARGIN,
@@ -442,15 +448,32 @@ def _hull_arrays(hulls, count: int):
             lo[:-1].copy(), lo[1:].copy())
 
 
-def _root(groups, boxes, reach) -> tuple:
+def _group_bounds(centres: np.ndarray, radii: np.ndarray,
+                  lo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_bounding` of every group at once (the same operations on the same numbers):
+    group g is centres[lo[g]:lo[g + 1]], radii likewise, none of them empty."""
+    starts = lo[:-1]
+    centre = (np.minimum.reduceat(centres, starts, axis=0)
+              + np.maximum.reduceat(centres, starts, axis=0)) / 2
+    d = centres - np.repeat(centre, np.diff(lo), axis=0)
+    return centre, np.maximum.reduceat(np.sqrt(np.add.reduce(d * d, axis=1)) + radii, starts)
+
+
+def _root(groups, boxes, reach, stacked=None) -> tuple:
     """A sphere around the origin of frame 0 that holds every group's spheres and every
     robot box (with its margin) in every configuration, given ``reach`` (per frame, a
-    bound on how far its origin is from frame 0's)."""
+    bound on how far its origin is from frame 0's).  ``stacked``: the groups' centres and
+    radii concatenated and where each group starts (``lo``), when none is empty."""
     if reach is None:
         return (0, np.zeros(3), np.inf, np.full(len(groups), np.inf),
                 np.full(len(boxes), np.inf))
     grp = np.zeros(len(groups))
-    for g, (frame, centres, radii, _) in enumerate(groups):
+    if stacked is not None:  # the loop below, for all groups at once
+        centres, radii, lo = stacked
+        extent = np.sqrt(np.add.reduce(centres * centres, axis=1)) + radii
+        frames = np.array([g[0] for g in groups], dtype=np.int64)
+        grp = np.asarray(reach, float)[frames] + np.maximum.reduceat(extent, lo[:-1])
+    for g, (frame, centres, radii, _) in enumerate(groups if stacked is None else ()):
         if len(radii):
             extent = np.linalg.norm(np.asarray(centres, float), axis=1) + np.asarray(radii)
             grp[g] = reach[frame] + float(extent.max())
@@ -810,23 +833,39 @@ def base_checker(client: int, arm_body: int, platform: int, base_pose: np.ndarra
     return SphereChecker(robot, world, base_frames, exact, motion=("base", psi_scale))
 
 
+@functools.lru_cache(maxsize=1)
+def _base_parts():
+    """What :func:`_base_robot` takes from the Panda's models, made once: the sphere
+    model and its rows of each link (``spheres.LINKS``' order), the inner spheres and the
+    group of each, and the links' hulls."""
+    model = spheres.panda_spheres(MARGIN)
+    rows = [np.flatnonzero(model.links == link) for link in spheres.LINKS]
+    inner = spheres.panda_inner_spheres()
+    inner_groups = np.array([spheres.LINKS.index(int(k)) for k in inner.links])
+    hulls = spheres.panda_hulls()
+    return model, rows, inner, inner_groups, [hulls[link] for link in spheres.LINKS]
+
+
 def _base_robot(client: int, arm_body: int, platform: int, base_pose: np.ndarray, q,
                 held) -> SphereRobot | None:
-    """The robot of :func:`base_checker` in its base frame (None: not modelled)."""
+    """The robot of :func:`base_checker` in its base frame (None: not modelled).  The
+    arm's frames are made in the base frame directly (compiled, as the scan makes them)."""
     box = _box_of(client, platform)
     if box is None:
         return None
     to_base = np.linalg.inv(base_pose)
-    model = spheres.panda_spheres(MARGIN)
-    arm = spheres.arm_frames(q[None], base_link_frame(client, arm_body))
-    centres = model.world(arm)[0] @ to_base[:3, :3].T + to_base[:3, 3]
-    groups = [(0, centres[model.links == link], model.radii[model.links == link], link != -1)
-              for link in spheres.LINKS]
+    model, rows, inner_model, inner_groups, link_hulls = _base_parts()
+    arm = np.empty((1, 8, 3, 4))
+    collide.arm_frames(np.asarray(q, float)[None],
+                       np.ascontiguousarray((to_base @ base_link_frame(client, arm_body))[:3]),
+                       spheres.panda_chain().origins[:7, :3].copy(), arm)
+    centres = model.world(arm)[0]
+    groups = [(0, centres[r], model.radii[r], link != -1)
+              for link, r in zip(spheres.LINKS, rows, strict=True)]
     hulls = []
-    for link in spheres.LINKS:  # hull vertices ride on the frames the spheres ride on
-        F = arm[0, spheres.FRAME_OF_LINK[link]]
-        world = spheres.panda_hulls()[link] @ F[:, :3].T + F[:, 3]
-        hulls.append(world @ to_base[:3, :3].T + to_base[:3, 3])
+    for link, hull in zip(spheres.LINKS, link_hulls, strict=True):
+        F = arm[0, spheres.FRAME_OF_LINK[link]]  # hull vertices ride on the spheres' frames
+        hulls.append(hull @ F[:, :3].T + F[:, 3])
     boxes = [(0, to_base @ box[0], box[1])]
     if held is not None:
         box = _held_box(client, held[0], held[1], 0)
@@ -835,10 +874,8 @@ def _base_robot(client: int, arm_body: int, platform: int, base_pose: np.ndarray
         boxes.append(box)
     # the inner spheres ride on the base frame too: one deep in a world box proves a
     # collision of the arm (their links' contacts are collisions for the exact check)
-    inner_model = spheres.panda_inner_spheres()
-    inner_c = inner_model.world(arm)[0] @ to_base[:3, :3].T + to_base[:3, 3]
-    inner = (np.zeros(len(inner_c), dtype=np.int64), inner_c, inner_model.radii,
-             np.array([spheres.LINKS.index(int(k)) for k in inner_model.links]))
+    inner = (np.zeros(len(inner_groups), dtype=np.int64), inner_model.world(arm)[0],
+             inner_model.radii, inner_groups)
     return SphereRobot.build(groups, boxes=boxes, inner=inner, hulls=hulls, reach=np.zeros(1))
 
 
@@ -877,6 +914,11 @@ class CertifiedRobot(Robot):
         self.model, self.checker = model, checker
         self.lower, self.upper = model.lower, model.upper
         self.description = model.description
+        # the checker's own methods, bound here: a planning call makes tens of thousands
+        # of checks, and each call through the methods below costs a Python frame more
+        self.check = checker.__call__
+        if type(model).check_motion is Robot.check_motion:
+            self.check_motion = checker.motion
 
     def check(self, states: np.ndarray) -> tuple[bool, int]:
         return self.checker(states)

@@ -206,9 +206,12 @@ class SphereModel:
     radii: np.ndarray
     links: np.ndarray
 
-    @property
+    @functools.cached_property
     def frames(self) -> np.ndarray:
-        return np.array([FRAME_OF_LINK[int(k)] for k in self.links])
+        """The frame each sphere rides on (made once per model; read-only)."""
+        out = np.array([FRAME_OF_LINK[int(k)] for k in self.links])
+        out.flags.writeable = False
+        return out
 
     def world(self, frames: np.ndarray) -> np.ndarray:
         """Centres (N, S, 3) for the frames (N, 8, 3, 4) of :func:`arm_frames`."""
