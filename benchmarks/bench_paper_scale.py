@@ -24,7 +24,7 @@ TrajOpt runs on grasp_arm and grasp_base only (the paper's TrajOpt stores).
 
 Run: python benchmarks/bench_paper_scale.py [--raw 30] [--instances 8] [--constraints 60]
          [--cores 2] [--only grasp_arm|grasp_base|pick_place] [--planners rrt_connect,trajopt]
-         [--real grasp_base:1000x1000]
+         [--real grasp_base:1000x1000 | grasp_arm:1800x162:trajopt]
 """
 
 from __future__ import annotations
@@ -119,17 +119,17 @@ def clock(seconds: float) -> str:
     return f"{h} h {rest // 60:02d} min" if h else f"{rest // 60} min {rest % 60:02d} s"
 
 
-def real_run(domain: str, n: int, m: int) -> dict:
-    """``stage=generate`` of one store at n × m on this machine's LocalCluster: wall time
-    and the planning time its workers recorded in D."""
+def real_run(domain: str, n: int, m: int, planner: str = "rrt_connect") -> dict:
+    """``stage=generate`` of one store at n × m with ``planner`` on this machine's
+    LocalCluster: wall time and the planning time its workers recorded in D."""
     from pipeline.store import ScoreStore
 
     tmp = Path(tempfile.mkdtemp(prefix="bench_paper_scale_"))
     try:
         store = tmp / f"{domain}.zarr"
         cmd = [sys.executable, "-m", "pipeline", "stage=generate", f"domain={domain}",
-               f"instances.n={n}", f"constraints.m={m}", f"store.path={store}",
-               "progress=false", f"hydra.run.dir={tmp / 'outputs'}"]
+               f"planner={planner}", f"instances.n={n}", f"constraints.m={m}",
+               f"store.path={store}", "progress=false", f"hydra.run.dir={tmp / 'outputs'}"]
         t0 = time.perf_counter()
         subprocess.run(cmd, cwd=ROOT, check=True, capture_output=True, text=True)
         wall = time.perf_counter() - t0
@@ -141,18 +141,21 @@ def real_run(domain: str, n: int, m: int) -> dict:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def real_size(text: str) -> tuple[str, int, int]:
-    """``--real``'s DOMAIN:NxM."""
+def real_size(text: str) -> tuple[str, int, int, str]:
+    """``--real``'s DOMAIN:NxM[:PLANNER] (the planner rrt_connect when not given)."""
     try:
-        domain, size = text.split(":")
+        domain, size, *rest = text.split(":")
         n, m = (int(x) for x in size.split("x"))
+        (planner,) = rest or ["rrt_connect"]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected DOMAIN:NxM, e.g. "
-                                         "grasp_base:1000x1000") from None
-    if domain not in PAPER or n < 1 or m < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: DOMAIN one of {', '.join(PAPER)}, "
-                                         "N and M at least 1")
-    return domain, n, m
+        raise argparse.ArgumentTypeError(f"{text!r}: expected DOMAIN:NxM[:PLANNER], e.g. "
+                                         "grasp_base:1000x1000 or grasp_arm:1800x162:trajopt"
+                                         ) from None
+    if domain not in PAPER or n < 1 or m < 1 or planner not in PLANNERS.get(domain, ()):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: DOMAIN one of {', '.join(PAPER)}, N and M at least 1, PLANNER one "
+            f"of the domain's ({', '.join(PLANNERS.get(domain, PLANNERS['grasp_arm']))})")
+    return domain, n, m, planner
 
 
 def main() -> None:
@@ -165,8 +168,9 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=2017)
     ap.add_argument("--only", choices=sorted(PAPER))
     ap.add_argument("--planners", default="rrt_connect,trajopt")
-    ap.add_argument("--real", type=real_size, help="DOMAIN:NxM, one real stage=generate "
-                    "run, e.g. grasp_base:1000x1000")
+    ap.add_argument("--real", type=real_size, help="DOMAIN:NxM[:PLANNER], one real "
+                    "stage=generate run (RRT-Connect unless PLANNER), e.g. "
+                    "grasp_base:1000x1000 or grasp_arm:1800x162:trajopt")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -184,10 +188,10 @@ def main() -> None:
                 rows[domain, planner] = measure(domain, planner, args)
     report(rows, args)
     if args.real:
-        domain, n, m = args.real
-        row = rows.get((domain, "rrt_connect")) or measure(domain, "rrt_connect", args)
-        got = real_run(domain, n, m)
-        print(f"\nreal run, {domain} {n} × {m}, RRT-Connect, LocalCluster on this machine: "
+        domain, n, m, planner = args.real
+        row = rows.get((domain, planner)) or measure(domain, planner, args)
+        got = real_run(domain, n, m, planner)
+        print(f"\nreal run, {domain} {n} × {m}, {planner}, LocalCluster on this machine: "
               f"{clock(got['wall_s'])} wall ({got['entries']:,} entries, planning time in "
               f"D {got['planning_cpu_s']:.0f} s, {got['feasible']:.1%} feasible); "
               f"projected {clock(projected_s(row, n, m, args.cores))} on {args.cores} cores")

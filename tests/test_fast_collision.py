@@ -398,3 +398,42 @@ def test_the_shipped_wrist_table_agrees_with_pybullet(lone_arm):
         free = fresh._free(table.lower + wrist.STEP * np.array([i, k]))
         assert (table.state[i, k] == 1) == free
     fresh.close()
+
+
+def test_group_bounds_are_bitwise_the_per_group_ones():
+    """SphereRobot.build computes every group's bounding sphere and reach at once; they
+    must be the very numbers of the one-group-at-a-time formulas, or the scan's answers
+    could move."""
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        sizes = rng.integers(1, 12, size=rng.integers(1, 14))
+        groups = [(int(rng.integers(0, 8)), rng.normal(size=(k, 3)) * rng.uniform(0.01, 2),
+                   rng.uniform(0.001, 0.2, size=k), True) for k in sizes]
+        lo = np.cumsum([0, *sizes])
+        centres = np.concatenate([g[1] for g in groups])
+        radii = np.concatenate([g[2] for g in groups])
+        gc, gr = FC._group_bounds(centres, radii, lo)
+        for g, (_, c, r, _) in enumerate(groups):
+            centre, radius = FC._bounding(c, r)
+            np.testing.assert_array_equal(gc[g], centre)
+            assert gr[g] == radius
+        reach = rng.uniform(0, 1, size=8)
+        boxes = [(0, np.eye(4), np.full(3, 0.05))]
+        one_by_one = FC._root(groups, boxes, reach)
+        at_once = FC._root(groups, boxes, reach, (centres, radii, lo))
+        np.testing.assert_array_equal(at_once[3], one_by_one[3])
+        assert at_once[2] == one_by_one[2]
+
+
+def test_path_lengths_are_bitwise_those_of_the_norm_formula():
+    """A stored entry's length and score replay only if path_length gives the same
+    numbers as the formula the stores were made with."""
+    from pipeline.planning import path_length
+
+    rng = np.random.default_rng(5)
+    for _ in range(500):
+        path = rng.normal(size=(int(rng.integers(2, 300)), int(rng.integers(1, 11))))
+        path *= rng.uniform(0.01, 10)
+        assert path_length(path) == float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+    assert path_length(np.zeros((1, 7))) == 0.0
+    assert path_length([[0.0, 0.0], [3.0, 4.0]]) == 5.0
