@@ -21,9 +21,12 @@ path length and score, bit for bit.
 Variants: ``new`` (this checkout, the default ``planner.collision=spheres``), ``exact``
 (this checkout, ``planner.collision=exact``) and ``base`` (the default setting at git
 revision ``--baseline-rev``, exported with ``git archive``; ``--baseline-rev ''`` skips it).
+``--contacts fresh`` runs ``new`` and ``exact`` with ``domain.contacts=fresh`` (every
+cached penetration confirmed afresh: docs/contacts.md); ``base`` keeps its revision's
+default.
 
 Run: python benchmarks/bench_pick_place.py [--raw 40] [--instances 8] [--constraints 40]
-         [--repeats 3] [--baseline-rev 641b270] [--profile]
+         [--repeats 3] [--baseline-rev 641b270] [--contacts cached|fresh] [--profile]
 """
 
 from __future__ import annotations
@@ -58,7 +61,10 @@ def child(job: dict) -> None:
     from pipeline import worker
 
     data = np.load(job["data"])
-    spec = {"name": "pick_place", "config": {"step_order": "paper"},
+    config = {"step_order": "paper"}
+    if job.get("contacts"):  # only when asked: a baseline revision may not know the key
+        config["contacts"] = job["contacts"]
+    spec = {"name": "pick_place", "config": config,
             "planner": {"name": "rrt_connect", "collision": job["collision"],
                         "wall_cap_s": WALL_CAP_S}}
     theta, specs, seeds = data["theta"], [str(s) for s in data["specs"]], data["seeds"]
@@ -114,8 +120,9 @@ def entries(raw: int, instances: int, constraints: int, seed: int) -> dict:
 
 
 def run(variant: str, root: Path, collision: str, data: Path, out: Path,
-        profile: bool) -> dict:
-    job = {"data": str(data), "out": str(out), "collision": collision, "profile": profile}
+        profile: bool, contacts: str | None = None) -> dict:
+    job = {"data": str(data), "out": str(out), "collision": collision, "profile": profile,
+           "contacts": contacts}
     return run_child(__file__, job, root, variant, profile)
 
 
@@ -127,6 +134,8 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=2017)
     ap.add_argument("--baseline-rev", default=BASELINE_REV)
+    ap.add_argument("--contacts", choices=("cached", "fresh"), default="cached",
+                    help="domain.contacts of the new and exact variants")
     ap.add_argument("--profile", action="store_true", help="cProfile the last repeat")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -149,7 +158,9 @@ def main() -> None:
             for v in names[r % len(names):] + names[: r % len(names)]:
                 root, collision = variants[v]
                 last = args.profile and r == args.repeats - 1 and v == "new"
-                times[v].append(run(v, root, collision, data, tmp / f"{v}.npz", last))
+                contacts = None if v == "base" or args.contacts == "cached" else args.contacts
+                times[v].append(run(v, root, collision, data, tmp / f"{v}.npz", last,
+                                    contacts))
         report(args, times, tmp, variants)
         shutil.rmtree(tmp / "base", ignore_errors=True)
 
@@ -161,13 +172,14 @@ def report(args, times: dict, tmp: Path, variants: dict) -> None:
     print(f"pick_place, paper step order: {args.instances} instances × "
           f"{n // args.instances} constraints = {n} entries per run, one core, median of "
           f"{args.repeats} runs per variant")
-    print(f"  {'variant':<40}{'wall ms/entry':>15}{'cpu ms/entry':>14}{'/ new':>9}")
-    label = {"new": "new (planner.collision=spheres)",
-             "exact": "new, planner.collision=exact",
+    print(f"  {'variant':<50}{'wall ms/entry':>15}{'cpu ms/entry':>14}{'/ new':>9}")
+    fresh = ", contacts=fresh" if args.contacts == "fresh" else ""
+    label = {"new": f"new (planner.collision=spheres{fresh})",
+             "exact": f"new, planner.collision=exact{fresh}",
              "base": f"baseline {args.baseline_rev} (spheres)"}
     for v in variants:
         ratio = med[v]["cpu_ms"] / med["new"]["cpu_ms"]
-        print(f"  {label[v]:<40}{med[v]['wall_ms']:>15.2f}{med[v]['cpu_ms']:>14.2f}"
+        print(f"  {label[v]:<50}{med[v]['wall_ms']:>15.2f}{med[v]['cpu_ms']:>14.2f}"
               f"{ratio:>8.2f}x")
     print(f"  target: <= {TARGET_MS:g} ms per entry: "
           + ("met" if med["new"]["cpu_ms"] <= TARGET_MS else "not met")

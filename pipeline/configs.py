@@ -310,6 +310,7 @@ def matching_identity(stored: dict | None, wanted: dict) -> dict:
 #: on whose default keeps D as it was belongs here, with that default.
 LATER_KEYS = {
     "domain.ik": "damped",  # pybullet's damped IK (pipeline.domains.ik.solve_ik)
+    "domain.contacts": "cached",  # pybullet's cached contact points (docs/contacts.md)
 }
 
 

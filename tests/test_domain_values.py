@@ -30,6 +30,8 @@ from tests.test_bad_inputs import bad_input, composed
     (("domain=pick_place", "domain.raw_grasps=0"), "raw_"),
     (("domain=grasp_arm", "domain.ik=fast"), "domain.ik must be one of damped, analytic"),
     (("domain=pick_place", "domain.ik=numeric"), "domain.ik"),
+    (("domain=grasp_base", "domain.contacts=stale"),
+     "domain.contacts must be one of cached, fresh"),
     (("planner=trajopt", "planner.trajopt_waypoints=2"), "trajopt_waypoints"),
     (("planner=trajopt", "planner.trajopt_trust_radius=0"), "trajopt_"),
 ])

@@ -105,11 +105,11 @@ class GraspArmInstance:
 class GraspArmScene:
     """One pybullet client with the furniture, both arms at home and an instance's boxes."""
 
-    def __init__(self, instance: GraspArmInstance | None = None):
+    def __init__(self, instance: GraspArmInstance | None = None, contacts: str = "cached"):
         self.client_id = connect()
         for size, centre in FURNITURE:
             add_box(self.client_id, size, centre, rgba=(0.55, 0.45, 0.35, 1.0))
-        self.arms = [P.Panda(self.client_id, base) for base in ARM_BASES]
+        self.arms = [P.Panda(self.client_id, base, contacts=contacts) for base in ARM_BASES]
         self.robot_ids = tuple(a.body for a in self.arms)
         self.instance = None
         self._bodies: list[int] = []
@@ -232,7 +232,7 @@ class GraspArmDomain(Domain):
         """The domain's scene (one pybullet client, made on first use), loaded with
         ``inst``."""
         if self._scene is None:
-            self._scene = GraspArmScene()
+            self._scene = GraspArmScene(contacts=self.config.contacts)
         self._scene.load(inst)
         return self._scene
 
@@ -283,12 +283,12 @@ class GraspArmDomain(Domain):
 
     def build_scene(self, instance) -> GraspArmScene:
         """A new scene (its own pybullet client) for inspection; close() it when done."""
-        return GraspArmScene(self.check_instance(instance))
+        return GraspArmScene(self.check_instance(instance), self.config.contacts)
 
     def render(self, instance, plan: PlanResult | None = None, path="grasp_arm.png",
                constraint=None, width: int = 480, height: int = 360) -> Path:
         inst = self.check_instance(instance)
-        scene = GraspArmScene(inst)
+        scene = GraspArmScene(inst, self.config.contacts)
         try:
             if plan is not None and plan.feasible and constraint is not None:
                 scene.set_configuration(plan.path[-1], arm=self.constraint(constraint).arm)

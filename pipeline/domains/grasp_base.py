@@ -155,7 +155,7 @@ class GraspBaseDomain(Domain):
         """The domain's scene (one pybullet client, made on first use), loaded with
         ``inst``."""
         if self._scene is None:
-            self._scene = MobileScene([t.box() for t in TABLES])
+            self._scene = MobileScene([t.box() for t in TABLES], self.config.contacts)
         self._scene.load(inst, _instance_boxes(inst))
         return self._scene
 
@@ -242,7 +242,7 @@ class GraspBaseDomain(Domain):
     def build_scene(self, instance) -> MobileScene:
         """A new scene (its own pybullet client) for inspection; close() it when done."""
         inst = self.check_instance(instance)
-        scene = MobileScene([t.box() for t in TABLES])
+        scene = MobileScene([t.box() for t in TABLES], self.config.contacts)
         scene.load(inst, _instance_boxes(inst))
         scene.robot.set_base(START_POSE)
         return scene

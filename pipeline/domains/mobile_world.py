@@ -90,12 +90,12 @@ class MobileScene:
     """A pybullet client with the floor, the fixed ``furniture`` (boxes), the mobile Panda
     and one instance's boxes (replaced when another instance is loaded)."""
 
-    def __init__(self, furniture: list[Box]):
+    def __init__(self, furniture: list[Box], contacts: str = "cached"):
         self.client_id = connect()
         add_box(self.client_id, FLOOR.size, FLOOR.position, rgba=FLOOR_RGBA)
         for b in furniture:
             add_box(self.client_id, b.size, b.position, b.yaw, rgba=FURNITURE_RGBA)
-        self.robot = MobilePanda(self.client_id)
+        self.robot = MobilePanda(self.client_id, contacts=contacts)
         self.robot_ids = (self.robot.platform, self.robot.body)
         self.key = None
         self.bodies: list[int] = []

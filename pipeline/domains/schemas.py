@@ -59,6 +59,7 @@ class GraspArmConfig:
     pregrasp_offset: float = 0.10
     ik_restarts: int = 4  # damped: IK runs; analytic: solutions collision-checked; at most
     ik: str = "damped"  # or "analytic": frankik's closed-form IK (pipeline.sim.analytic_ik)
+    contacts: str = "cached"  # or "fresh": cached penetrations confirmed anew (docs/contacts.md)
 
     def __post_init__(self):
         _obstacle_range(self.obstacles_min, self.obstacles_max)
@@ -66,6 +67,7 @@ class GraspArmConfig:
         if self.ik_restarts < 1 or self.pregrasp_offset < 0:
             raise ValueError("domain: need ik_restarts >= 1 and pregrasp_offset >= 0")
         _ik(self.ik)
+        _contacts(self.contacts)
 
 
 @dataclass
@@ -82,6 +84,7 @@ class GraspBaseConfig:
     pregrasp_offset: float = 0.10
     ik_restarts: int = 10  # damped: IK runs; analytic: solutions collision-checked; at most
     ik: str = "damped"  # or "analytic": frankik's closed-form IK (pipeline.sim.analytic_ik)
+    contacts: str = "cached"  # or "fresh": cached penetrations confirmed anew (docs/contacts.md)
     raw_base_samples: int = 40  # collision-free base poses RAWPLANNER tries before giving up
 
     def __post_init__(self):
@@ -105,6 +108,7 @@ class PickPlaceConfig:
     pregrasp_offset: float = 0.10
     ik_restarts: int = 10  # damped: IK runs; analytic: solutions collision-checked; at most
     ik: str = "damped"  # or "analytic": frankik's closed-form IK (pipeline.sim.analytic_ik)
+    contacts: str = "cached"  # or "fresh": cached penetrations confirmed anew (docs/contacts.md)
     psi_scale: float = 0.5  # metres per radian of base rotation (path metric)
     arm_weight: float = 0.1  # metres per radian of arm motion (score)
     base_max_checks: int = 4000  # collision checks per base path, both legs together
@@ -136,6 +140,12 @@ class PickPlaceConfig:
 #: damped IK from seeded restarts, or frankik's closed-form solutions
 IK_METHODS = ("damped", "analytic")
 
+#: the values of ``domain.contacts`` in the Panda domains: pybullet's contact points as it
+#: caches them between checks (the answers of every store made before the setting), or
+#: every cached penetration confirmed afresh, a function of the poses alone
+#: (pipeline.sim.contacts, docs/contacts.md)
+CONTACTS = ("cached", "fresh")
+
 #: pick_place's step orders (the keys of pipeline.domains.pick_place.plan_steps.ORDERS) and
 #: its widest door (the wall between the rooms less the platform's margins), metres
 PICK_PLACE_ORDERS = ("paper", "cheap_first")
@@ -163,6 +173,13 @@ def _mobile(c) -> None:
         raise ValueError("domain: need obstacles >= 0, ik_restarts >= 1 and "
                          "pregrasp_offset >= 0")
     _ik(c.ik)
+    _contacts(c.contacts)
+
+
+def _contacts(value: str) -> None:
+    if value not in CONTACTS:
+        raise ValueError(f"domain.contacts must be one of {', '.join(CONTACTS)}, got "
+                         f"{value!r}")
 
 
 def _ik(method: str) -> None:

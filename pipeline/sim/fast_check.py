@@ -30,7 +30,7 @@ import numpy as np
 import pybullet as pb
 
 from pipeline.planning.base import Robot, check_order, interpolate
-from pipeline.sim import collide, spheres, wrist
+from pipeline.sim import collide, contacts, spheres, wrist
 
 #: extra radius (metres) of the robot's spheres and of other robots' spheres: pybullet
 #: collides meshes as their convex hulls grown by its collision margin (1 mm; measured
@@ -772,14 +772,17 @@ def _arm_robot(client: int, arm_body: int, ignored_pairs, held, hand_links):
 
 
 def arm_checker(client: int, arm_body: int, ignored_pairs, exact, *, held=None,
-                hand_links=frozenset(), fixed_robot=(), world_key=None) -> SphereChecker:
+                hand_links=frozenset(), fixed_robot=(), world_key=None,
+                fresh_contacts: bool = False) -> SphereChecker:
     """Checker for arm motions with the base fixed.
 
     ``ignored_pairs``: the arm's link pairs pybullet does not check; ``held``: (body, pose
     in the frame of link 6) of a box carried rigidly by the hand (its contacts with
     ``hand_links`` are the grasp); ``fixed_robot``: bodies of the same robot that do not
     move (a platform): the arm and the held box must not touch them, and they must not
-    touch the world.  ``world_key``: see :func:`read_world`.
+    touch the world (asked of pybullet's contacts; ``fresh_contacts``: each cached
+    penetration confirmed afresh, as the robot's own checks do).  ``world_key``: see
+    :func:`read_world`.
     """
     robot, frames, ok = _arm_robot(client, arm_body, ignored_pairs, held, hand_links)
     world = read_world(client, {arm_body} | ({held[0]} if held is not None else set()),
@@ -793,10 +796,11 @@ def arm_checker(client: int, arm_body: int, ignored_pairs, exact, *, held=None,
 
         def apart() -> bool:
             return all(body in world.bodies for body in fixed_robot) and not any(
-                _touches_world(client, body, robot_bodies) for body in fixed_robot)
+                _touches_world(client, body, robot_bodies, fresh_contacts)
+                for body in fixed_robot)
         certified = apart() if world_key is None else _WORLDS.get(
-            ("apart", client, world_key, frozenset(robot_bodies), _poses(client, fixed_robot)),
-            apart)
+            ("apart", client, world_key, frozenset(robot_bodies), _poses(client, fixed_robot),
+             fresh_contacts), apart)
     table = wrist_table(ignored_pairs)
     return SphereChecker(robot, world, frames, exact, certified, also=table.uncertain,
                          motion=("arm", frames.base34, frames.origins, table))
@@ -879,7 +883,9 @@ def _base_robot(client: int, arm_body: int, platform: int, base_pose: np.ndarray
     return SphereRobot.build(groups, boxes=boxes, inner=inner, hulls=hulls, reach=np.zeros(1))
 
 
-def _touches_world(client: int, body: int, robot_bodies) -> bool:
+def _touches_world(client: int, body: int, robot_bodies, fresh: bool = False) -> bool:
+    if fresh:
+        return contacts.collides(client, body, lambda p: p[2] in robot_bodies)
     pb.performCollisionDetection(physicsClientId=client)
     return any(p[8] < 0 and p[2] not in robot_bodies
                for p in pb.getContactPoints(bodyA=body, physicsClientId=client))
@@ -985,7 +991,8 @@ def certified_mobile_arm(model) -> CertifiedRobot:
     r = model.robot
     return CertifiedRobot(model, arm_checker(
         r.client, r.body, r.arm.ignored_pairs, r.arm_collides, held=_held(r, hand=True),
-        hand_links=r.hand_links, fixed_robot=(r.platform,), world_key=_world_key(r)))
+        hand_links=r.hand_links, fixed_robot=(r.platform,), world_key=_world_key(r),
+        fresh_contacts=r.fresh_contacts))
 
 
 def certified_mobile_base(model) -> CertifiedRobot:

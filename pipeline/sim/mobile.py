@@ -22,6 +22,7 @@ import pybullet as pb
 
 from pipeline.planning.base import Robot
 from pipeline.sim import panda as P
+from pipeline.sim.contacts import penetrating
 from pipeline.sim.world import add_box, pose_matrix, quaternion, rot_z
 
 PLATFORM = (0.60, 0.50, 0.30)  # full size (length along the heading, width, height), metres
@@ -46,11 +47,12 @@ def _pose_of(body: int, client: int) -> np.ndarray:
 class MobilePanda:
     """The mobile manipulator in ``client``; starts at base pose (0, 0, 0), arm at home."""
 
-    def __init__(self, client: int, *, rgba=(0.25, 0.25, 0.3, 1.0)):
+    def __init__(self, client: int, *, rgba=(0.25, 0.25, 0.3, 1.0), contacts: str = "cached"):
         self.client = client
         z = PLATFORM_LIFT + PLATFORM[2] / 2
         self.platform = add_box(client, PLATFORM, (0.0, 0.0, z), rgba=rgba, movable=True)
-        self.arm = P.Panda(client, (MOUNT, 0.0, ARM_HEIGHT))
+        self.arm = P.Panda(client, (MOUNT, 0.0, ARM_HEIGHT), contacts=contacts)
+        self.fresh_contacts = self.arm.fresh_contacts
         self.body = self.arm.body
         self.pose = np.zeros(3)
         self.held: int | None = None
@@ -127,6 +129,8 @@ class MobilePanda:
         c = self.client
         pb.performCollisionDetection(physicsClientId=c)
         robot = (self.platform, self.body)
+        if self.fresh_contacts:
+            return self._penetrating(robot)
         for pt in pb.getContactPoints(bodyA=self.platform, physicsClientId=c):
             if pt[8] < 0 and pt[2] not in robot:
                 return True
@@ -138,6 +142,16 @@ class MobilePanda:
                 if pt[8] < 0 and not (pt[2] == self.body and pt[4] in HAND_LINKS):
                     return True
         return False
+
+    def _penetrating(self, robot) -> bool:
+        """:meth:`_in_collision`'s three questions, each cached penetration confirmed
+        afresh (``contacts="fresh"``)."""
+        c, held = self.client, self.held
+        return (penetrating(c, self.platform, lambda pt: pt[2] in robot)
+                or penetrating(c, self.body, lambda pt: pt[3] == -1 or (
+                    pt[2] == held and pt[3] in HAND_LINKS))
+                or (held is not None and penetrating(
+                    c, held, lambda pt: pt[2] == self.body and pt[4] in HAND_LINKS)))
 
     def arm_collides(self, q) -> bool:
         self.set_arm(q)

@@ -6,7 +6,9 @@ Collision check (the fastest method measured for this project): set all seven jo
 ``resetJointStatesMultiDof`` call, ``performCollisionDetection``, then look for contacts of
 the arm with penetration (distance < 0).  Self-collision is on, with the link pairs that
 touch at the home configuration or are parent and child filtered out.  The base link does
-not move, so its contacts (with the stand) are ignored.
+not move, so its contacts (with the stand) are ignored.  ``contacts="fresh"`` confirms every
+penetration pybullet reports from its cached contact points afresh, so that the answer is
+a function of the poses alone (:mod:`pipeline.sim.contacts`, docs/contacts.md).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import numpy as np
 import pybullet as pb
 
 from pipeline.planning.base import Robot
+from pipeline.sim.contacts import collides as collides_afresh
 from pipeline.sim.world import yaw_quaternion
 
 ARM_JOINTS = tuple(range(7))
@@ -45,8 +48,12 @@ class Panda(Robot):
     description = "a fixed Panda arm"
     lower, upper = LOWER, UPPER
 
-    def __init__(self, client: int, base_position, *, finger_opening: float = 0.04):
+    def __init__(self, client: int, base_position, *, finger_opening: float = 0.04,
+                 contacts: str = "cached"):
         self.client = client
+        #: ``domain.contacts`` (its schema checks the value): "fresh" confirms every cached
+        #: penetration anew at each check
+        self.fresh_contacts = contacts == "fresh"
         self.base_position = np.asarray(base_position, float)
         self.base_yaw = 0.0
         self.body = pb.loadURDF("franka_panda/panda.urdf", basePosition=list(self.base_position),
@@ -105,6 +112,8 @@ class Panda(Robot):
 
     def collides_at(self, q) -> bool:
         self.set(q)
+        if self.fresh_contacts:
+            return collides_afresh(self.client, self.body, _on_mount)
         pb.performCollisionDetection(physicsClientId=self.client)
         for pt in pb.getContactPoints(bodyA=self.body, physicsClientId=self.client):
             if pt[8] < 0 and pt[3] != -1:
@@ -234,6 +243,11 @@ def wrist_out_of_reach(shoulder, position, orientation, pos_tol: float = IK_POS_
     gap = float(np.hypot(along, across - WRIST_RADIUS))  # the shoulder to the nearest point
     slack = pos_tol + 2.0 * np.sin(ang_tol / 2.0) * float(np.hypot(WRIST_BACK, WRIST_RADIUS))
     return gap > WRIST_REACH + slack + 1e-3
+
+
+def _on_mount(pt) -> bool:
+    """A contact of the arm's base link (with the stand it is mounted on): not a collision."""
+    return pt[3] == -1
 
 
 def ik_starts(rng_seed, restarts: int):

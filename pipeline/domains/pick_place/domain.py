@@ -152,7 +152,8 @@ class PickPlaceDomain(Domain):
         """The domain's scene (one pybullet client, made on first use) loaded with
         ``inst``: rod on the start table, robot at the start, arm at home, nothing held."""
         if self._scene is None:
-            self._scene = PickPlaceScene(self.furniture, self.config.psi_scale)
+            self._scene = PickPlaceScene(self.furniture, self.config.psi_scale,
+                                         self.config.contacts)
         self._scene.load(inst)
         return self._scene
 
@@ -297,7 +298,7 @@ class PickPlaceDomain(Domain):
 
     def build_scene(self, instance) -> PickPlaceScene:
         """A new scene (its own pybullet client) for inspection; close() it when done."""
-        scene = PickPlaceScene(self.furniture, self.config.psi_scale)
+        scene = PickPlaceScene(self.furniture, self.config.psi_scale, self.config.contacts)
         scene.load(self.check_instance(instance))
         return scene
 

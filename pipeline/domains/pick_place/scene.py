@@ -20,6 +20,7 @@ from pipeline.domains.pick_place.world import (
     start_rod,
 )
 from pipeline.sim import panda as P
+from pipeline.sim.contacts import collides as collides_afresh
 from pipeline.sim.mobile import MobileArm, MobileBase
 from pipeline.sim.world import add_box, quaternion, rot_z
 
@@ -36,8 +37,8 @@ class PickPlaceScene:
     """One pybullet client: floor, furniture, the mobile Panda, the instance's obstacles and
     the rod (a movable body, so that its contacts with the static world are reported)."""
 
-    def __init__(self, furniture: list[Box], psi_scale: float):
-        self.mobile = MobileScene(furniture)
+    def __init__(self, furniture: list[Box], psi_scale: float, contacts: str = "cached"):
+        self.mobile = MobileScene(furniture, contacts)
         self.client_id = self.mobile.client_id
         self.robot = self.mobile.robot
         self.robot_ids = self.mobile.robot_ids
@@ -83,6 +84,8 @@ class PickPlaceScene:
 
     def rod_collides(self) -> bool:
         c = self.client_id
+        if self.robot.fresh_contacts:
+            return collides_afresh(c, self.rod)
         pb.performCollisionDetection(physicsClientId=c)
         return any(pt[8] < 0 for pt in pb.getContactPoints(bodyA=self.rod, physicsClientId=c))
 

@@ -1,0 +1,129 @@
+"""``domain.contacts=fresh``: every exact check of the Panda domains (a fixed arm, the
+mobile robot, the rod on its own, the platform against the world when an arm checker is
+made) confirms pybullet's cached penetrations afresh, so its answer is a function of the
+poses alone (pipeline/sim/contacts.py, docs/contacts.md); ``cached``, the default, keeps
+the answers of every store made before; the store identity records the setting only when
+it is ``fresh``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet as pb
+import pytest
+
+from pipeline.configs import LATER_KEYS, differing_keys, identity
+from pipeline.domains.geometry import Box
+from pipeline.domains.pick_place.scene import PickPlaceScene
+from pipeline.sim import contacts
+from pipeline.sim import fast_check as FC
+from pipeline.sim.mobile import PLATFORM, PLATFORM_LIFT, MobilePanda
+from pipeline.sim.panda import HOME, LOWER, UPPER, Panda
+from pipeline.sim.world import add_box, connect
+from tests import pipeline_runs as pr
+from tests.test_bad_inputs import bad_input, composed
+from tests.test_contacts import BESIDE, FAR, ROD, SUNK, TABLE
+
+#: a table for the mobile robot, far from where it stands: TABLE's pose moved by OFFSET
+OFFSET = np.array([4.0, 4.0, 0.0])
+
+
+def _put(client, body, position):
+    pb.resetBasePositionAndOrientation(body, list(position), [0, 0, 0, 1],
+                                       physicsClientId=client)
+
+
+def test_identity_records_contacts_only_when_fresh():
+    assert LATER_KEYS["domain.contacts"] == "cached"
+    for name in ("grasp_arm", "grasp_base", "pick_place"):
+        plain = identity(composed(f"domain={name}"))
+        cached = identity(composed(f"domain={name}", "domain.contacts=cached"))
+        fresh = identity(composed(f"domain={name}", "domain.contacts=fresh"))
+        assert plain == cached and "contacts" not in cached["domain"]
+        assert fresh["domain"]["contacts"] == "fresh"
+        assert differing_keys(cached, fresh) == ["domain.contacts"]
+    assert "contacts" not in identity(composed("domain=planar"))["domain"]
+
+
+def test_planar_has_no_contacts_key_and_refuses_it_in_one_line(tmp_path):
+    res = pr.run(tmp_path / "s.zarr", "stage=instances", "domain.contacts=fresh")
+    bad_input(res, "domain.contacts")
+    assert not (tmp_path / "s.zarr").exists()
+
+
+def test_a_fixed_arm_answers_as_a_client_without_history():
+    """Panda.collides_at on a random walk near a box: with fresh contacts, every answer is
+    the plain answer of a client whose pairs are flushed before each check."""
+    def arm_scene(setting):
+        client = connect()
+        arm = Panda(client, [0.0, 0.0, 0.0], contacts=setting)
+        add_box(client, (0.3, 0.8, 0.4), (0.55, 0.0, 0.2))
+        return client, arm
+
+    (c, arm), (f, first) = arm_scene("fresh"), arm_scene("cached")
+    base = pb.getBasePositionAndOrientation(first.body, physicsClientId=f)
+    rng = np.random.default_rng(1)
+    q, answers = HOME.copy(), []
+    for _ in range(150):
+        q = np.clip(q + rng.normal(0.0, 0.08, 7), LOWER, UPPER)
+        answers.append(arm.collides_at(q))
+        assert answers[-1] == first.collides_at(q)
+        pb.resetBasePositionAndOrientation(first.body, [50.0, 0.0, 0.0], base[1],
+                                           physicsClientId=f)
+        pb.performCollisionDetection(physicsClientId=f)
+        pb.resetBasePositionAndOrientation(first.body, *base, physicsClientId=f)
+    assert 10 < sum(answers) < 140  # the walk touches the box and leaves it
+    pb.disconnect(c)
+    pb.disconnect(f)
+
+
+def _platform_scene(setting):
+    """A mobile robot and a cube beside it: the platform's front face 1.5 mm deep in the
+    cube's side, 2 mm of its width over the cube's edge (SINK), or slid 2.5 mm further
+    (SLID: 0.5 mm clear of the edge)."""
+    client = connect()
+    robot = MobilePanda(client, contacts=setting)
+    size = 0.6
+    cube = (2.0, 1.0, size / 2)
+    add_box(client, (size, size, size), cube)
+    x = cube[0] - size / 2 - PLATFORM[0] / 2 + 0.0015
+    y = cube[1] - size / 2 - PLATFORM[1] / 2 + 0.002
+    assert PLATFORM_LIFT + PLATFORM[2] < size  # the platform's side lies inside the cube's
+    return client, robot, np.array([x, y, 0.0]), np.array([x, y - 0.0025, 0.0])
+
+
+@pytest.mark.parametrize("setting, stale", [("cached", True), ("fresh", False)])
+def test_the_mobile_robot_forgets_a_penetration_that_is_gone(setting, stale):
+    client, robot, sink, slid = _platform_scene(setting)
+    assert robot.base_collides(sink)
+    assert robot.base_collides(slid) is stale  # cached: the point of the sunk pose
+    other, robot2, _, slid2 = _platform_scene(setting)  # no history: free
+    assert not robot2.base_collides(slid2)
+    pb.disconnect(client)
+    pb.disconnect(other)
+
+
+@pytest.mark.parametrize("setting, stale", [("cached", True), ("fresh", False)])
+def test_the_rod_on_its_own_forgets_a_penetration_that_is_gone(setting, stale):
+    scene = PickPlaceScene([Box(TABLE, tuple(OFFSET), 0.0)], 0.5, setting)
+    client = scene.client_id
+    scene.rod = add_box(client, ROD, tuple(np.add(FAR, OFFSET)), movable=True)
+    _put(client, scene.rod, np.add(SUNK, OFFSET))
+    assert scene.rod_collides()
+    _put(client, scene.rod, np.add(BESIDE, OFFSET))
+    assert scene.rod_collides() is stale
+    pb.disconnect(client)
+
+
+@pytest.mark.parametrize("fresh", [False, True])
+def test_the_platforms_touch_test_follows_the_setting(fresh):
+    """``_touches_world`` (whether a part of the robot that stands still touches the world
+    when an arm checker is made) asks the fresh question under the setting."""
+    client = connect()
+    add_box(client, TABLE, (0.0, 0.0, 0.0))
+    rod = add_box(client, ROD, FAR, movable=True)
+    _put(client, rod, SUNK)
+    assert FC._touches_world(client, rod, set(), fresh)
+    _put(client, rod, BESIDE)
+    assert FC._touches_world(client, rod, set(), fresh) is not fresh
+    assert not contacts.collides(client, rod)
+    pb.disconnect(client)
