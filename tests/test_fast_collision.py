@@ -402,8 +402,9 @@ def test_the_shipped_wrist_table_agrees_with_pybullet(lone_arm):
 
 def test_group_bounds_are_bitwise_the_per_group_ones():
     """SphereRobot.build computes every group's bounding sphere and reach at once; they
-    must be the very numbers of the one-group-at-a-time formulas, or the scan's answers
-    could move."""
+    must be the very numbers of the one-group-at-a-time formulas it used before, or the
+    scan's answers could move.  A group without spheres is refused (its bounds would be
+    another group's)."""
     rng = np.random.default_rng(4)
     for _ in range(200):
         sizes = rng.integers(1, 12, size=rng.integers(1, 14))
@@ -419,10 +420,13 @@ def test_group_bounds_are_bitwise_the_per_group_ones():
             assert gr[g] == radius
         reach = rng.uniform(0, 1, size=8)
         boxes = [(0, np.eye(4), np.full(3, 0.05))]
-        one_by_one = FC._root(groups, boxes, reach)
-        at_once = FC._root(groups, boxes, reach, (centres, radii, lo))
-        np.testing.assert_array_equal(at_once[3], one_by_one[3])
-        assert at_once[2] == one_by_one[2]
+        root = FC._root([g[0] for g in groups], boxes, reach, (centres, radii, lo))
+        for g, (frame, c, r, _) in enumerate(groups):  # the formula, one group at a time
+            extent = reach[frame] + float((np.linalg.norm(c, axis=1) + r).max())
+            assert root[3][g] == extent + 1e-6  # (_root's own margin)
+    with pytest.raises(ValueError, match="at least one sphere"):
+        FC.SphereRobot.build([(0, np.zeros((1, 3)), np.array([0.1]), True),
+                              (1, np.zeros((0, 3)), np.zeros(0), True)])
 
 
 def test_path_lengths_are_bitwise_those_of_the_norm_formula():

@@ -304,7 +304,7 @@ class SphereRobot:
             self.hull = np.zeros((0, 3))
             self.grp_hlo = self.grp_hhi = np.zeros(len(self.grp_r), dtype=np.int64)
         if self.root is None:
-            self.root = _root([(0, None, ())] * len(self.grp_r), [None] * len(self.rbox_T), None)
+            self.root = _root([0] * len(self.grp_r), [None] * len(self.rbox_T), None)
         self.root_frame = int(self.root[0])
         self.root_c = np.asarray(self.root[1], float)
         self.root_r = float(self.root[2])
@@ -331,16 +331,13 @@ class SphereRobot:
         hull_arrays = _hull_arrays(hulls, len(groups))
         groups = list(groups) or [(0, np.zeros((1, 3)), np.array([-1.0]), False)]
         sizes = [len(g[2]) for g in groups]
+        if not min(sizes):
+            raise ValueError("SphereRobot.build: every group needs at least one sphere")
         lo = np.cumsum([0] + sizes)
         centres = np.concatenate([g[1] for g in groups])
         radii = np.concatenate([g[2] for g in groups])
-        if min(sizes):  # every group has spheres: all groups' bounds at once
-            gc, gr = _group_bounds(centres, radii, lo)
-            root = _root(groups, boxes, reach, (centres, radii, lo))
-        else:
-            bounds = [_bounding(c, r) for _, c, r, _ in groups]
-            gc, gr = [b[0] for b in bounds], [b[1] for b in bounds]
-            root = _root(groups, boxes, reach)
+        gc, gr = _group_bounds(centres, radii, lo)
+        root = _root([g[0] for g in groups], boxes, reach, (centres, radii, lo))
         # parts riding on one frame keep their distance: a pair whose spheres are apart now
         # is apart in every configuration, and the scan need not test it (its answer would
         # be "apart" row after row); the proofs still see every pair (``_inner_vs_boxes``)
@@ -450,8 +447,9 @@ def _hull_arrays(hulls, count: int):
 
 def _group_bounds(centres: np.ndarray, radii: np.ndarray,
                   lo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_bounding` of every group at once (the same operations on the same numbers):
-    group g is centres[lo[g]:lo[g + 1]], radii likewise, none of them empty."""
+    """:func:`_bounding` of every group at once (the same operations on the same numbers,
+    ``tests/test_fast_collision.py``): group g is centres[lo[g]:lo[g + 1]], radii
+    likewise, none of them empty."""
     starts = lo[:-1]
     centre = (np.minimum.reduceat(centres, starts, axis=0)
               + np.maximum.reduceat(centres, starts, axis=0)) / 2
@@ -459,24 +457,19 @@ def _group_bounds(centres: np.ndarray, radii: np.ndarray,
     return centre, np.maximum.reduceat(np.sqrt(np.add.reduce(d * d, axis=1)) + radii, starts)
 
 
-def _root(groups, boxes, reach, stacked=None) -> tuple:
+def _root(frames, boxes, reach, stacked=None) -> tuple:
     """A sphere around the origin of frame 0 that holds every group's spheres and every
     robot box (with its margin) in every configuration, given ``reach`` (per frame, a
-    bound on how far its origin is from frame 0's).  ``stacked``: the groups' centres and
-    radii concatenated and where each group starts (``lo``), when none is empty."""
+    bound on how far its origin is from frame 0's).  ``frames``: each group's frame;
+    ``stacked`` (needed with a ``reach``): the groups' centres and radii concatenated and
+    where each group starts (``lo``), none of them empty."""
     if reach is None:
-        return (0, np.zeros(3), np.inf, np.full(len(groups), np.inf),
+        return (0, np.zeros(3), np.inf, np.full(len(frames), np.inf),
                 np.full(len(boxes), np.inf))
-    grp = np.zeros(len(groups))
-    if stacked is not None:  # the loop below, for all groups at once
-        centres, radii, lo = stacked
-        extent = np.sqrt(np.add.reduce(centres * centres, axis=1)) + radii
-        frames = np.array([g[0] for g in groups], dtype=np.int64)
-        grp = np.asarray(reach, float)[frames] + np.maximum.reduceat(extent, lo[:-1])
-    for g, (frame, centres, radii, _) in enumerate(groups if stacked is None else ()):
-        if len(radii):
-            extent = np.linalg.norm(np.asarray(centres, float), axis=1) + np.asarray(radii)
-            grp[g] = reach[frame] + float(extent.max())
+    centres, radii, lo = stacked  # each group's farthest point from frame 0's origin:
+    extent = np.sqrt(np.add.reduce(centres * centres, axis=1)) + radii
+    grp = (np.asarray(reach, float)[np.asarray(frames, dtype=np.int64)]
+           + np.maximum.reduceat(extent, lo[:-1]))
     box = np.zeros(len(boxes))
     for b, (frame, T, half) in enumerate(boxes):
         box[b] = reach[frame] + float(np.linalg.norm(np.asarray(T)[:3, 3])
