@@ -834,13 +834,15 @@ def base_checker(client: int, arm_body: int, platform: int, base_pose: np.ndarra
 def _base_parts():
     """What :func:`_base_robot` takes from the Panda's models, made once: the sphere
     model and its rows of each link (``spheres.LINKS``' order), the inner spheres and the
-    group of each, and the links' hulls."""
+    group of each, the links' hulls and the chain's joint origins (as the scan takes
+    them)."""
     model = spheres.panda_spheres(MARGIN)
     rows = [np.flatnonzero(model.links == link) for link in spheres.LINKS]
     inner = spheres.panda_inner_spheres()
     inner_groups = np.array([spheres.LINKS.index(int(k)) for k in inner.links])
     hulls = spheres.panda_hulls()
-    return model, rows, inner, inner_groups, [hulls[link] for link in spheres.LINKS]
+    origins = np.ascontiguousarray(spheres.panda_chain().origins[:7, :3])
+    return model, rows, inner, inner_groups, [hulls[link] for link in spheres.LINKS], origins
 
 
 def _base_robot(client: int, arm_body: int, platform: int, base_pose: np.ndarray, q,
@@ -851,11 +853,11 @@ def _base_robot(client: int, arm_body: int, platform: int, base_pose: np.ndarray
     if box is None:
         return None
     to_base = np.linalg.inv(base_pose)
-    model, rows, inner_model, inner_groups, link_hulls = _base_parts()
+    model, rows, inner_model, inner_groups, link_hulls, origins = _base_parts()
     arm = np.empty((1, 8, 3, 4))
     collide.arm_frames(np.asarray(q, float)[None],
                        np.ascontiguousarray((to_base @ base_link_frame(client, arm_body))[:3]),
-                       spheres.panda_chain().origins[:7, :3].copy(), arm)
+                       origins, arm)
     centres = model.world(arm)[0]
     groups = [(0, centres[r], model.radii[r], link != -1)
               for link, r in zip(spheres.LINKS, rows, strict=True)]
