@@ -22,7 +22,7 @@ at a given size and prints its wall time next to the projection of that same siz
 The paper's sizes (§V): grasp_arm 1800 × 162, grasp_base 1000 × 1000, pick_place 1500 × 1000.
 TrajOpt runs on grasp_arm and grasp_base only (the paper's TrajOpt stores).
 
-Run: python benchmarks/bench_paper_scale.py [--raw 30] [--instances 8] [--constraints 60]
+Run: python benchmarks/bench_paper_scale.py [--raw 30] [--instances 24] [--constraints 60]
          [--cores 2] [--only grasp_arm|grasp_base|pick_place] [--planners rrt_connect,trajopt]
          [--real grasp_base:1000x1000 | grasp_arm:1800x162:trajopt]
 """
@@ -161,7 +161,7 @@ def real_size(text: str) -> tuple[str, int, int, str]:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--raw", type=int, default=30, help="RAWPLANNER instances (Θ̂ and its cost)")
-    ap.add_argument("--instances", type=int, default=8, help="instances of the timed block")
+    ap.add_argument("--instances", type=int, default=24, help="instances of the timed block")
     ap.add_argument("--constraints", type=int, default=60,
                     help="constraints of the timed block (the default store block's width)")
     ap.add_argument("--cores", type=int, default=2)
