@@ -19,6 +19,7 @@ from pipeline.sim import fast_check as FC
 from pipeline.sim.mobile import PLATFORM, PLATFORM_LIFT, MobilePanda
 from pipeline.sim.panda import HOME, LOWER, UPPER, Panda
 from pipeline.sim.world import add_box, connect
+from pipeline.store import ScoreStore
 from tests import pipeline_runs as pr
 from tests.test_bad_inputs import bad_input, composed
 from tests.test_contacts import BESIDE, FAR, ROD, SUNK, TABLE
@@ -127,3 +128,20 @@ def test_the_platforms_touch_test_follows_the_setting(fresh):
     assert FC._touches_world(client, rod, set(), fresh) is not fresh
     assert not contacts.collides(client, rod)
     pb.disconnect(client)
+
+
+def test_a_fresh_store_records_the_setting_and_refuses_to_go_on_cached(tmp_path):
+    """The setting reaches the store (identity and config, which workers and replays plan
+    with), and a run under the default refuses the store in one line naming the key."""
+    store = tmp_path / "s.zarr"
+    tiny = ("domain=grasp_arm", "instances.n=3", "constraints.m=4", "store.block_instances=3",
+            "store.block_constraints=4", "cluster.n_workers=1")
+    res = pr.run(store, *tiny, "domain.contacts=fresh")
+    assert res.returncode == 0, res.stderr
+    attrs = ScoreStore(store).attrs
+    assert attrs["identity"]["domain"]["contacts"] == "fresh"
+    assert attrs["config"]["domain"]["contacts"] == "fresh"
+    before = pr.matrix(store)
+    res = pr.run(store, *tiny)
+    bad_input(res, "domain.contacts")
+    assert pr.same_matrix(before, pr.matrix(store))
