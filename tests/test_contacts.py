@@ -63,34 +63,48 @@ def test_fresh_answer_ignores_the_history(scene, history, target, expected):
     assert contacts.collides(client, rod) is expected
 
 
-def test_panda_answers_agree_with_a_client_without_history():
-    """A random walk of the arm near a box (self-collision on, base link ignored): the
-    fresh answer at every step equals the plain answer in a client where every check is
-    the first (its manifolds flushed by moving the arm away and back)."""
-    def arm_scene():
-        client = connect()
-        arm = Panda(client, [0.0, 0.0, 0.0])
-        add_box(client, (0.3, 0.8, 0.4), (0.55, 0.0, 0.2))
-        return client, arm
+def arm_scene(**panda):
+    """A Panda (``panda``: its keyword arguments) in a client of its own, near a box."""
+    client = connect()
+    arm = Panda(client, [0.0, 0.0, 0.0], **panda)
+    add_box(client, (0.3, 0.8, 0.4), (0.55, 0.0, 0.2))
+    return client, arm
 
-    (c, arm), (f, first) = arm_scene(), arm_scene()
+
+def walk_near_a_box(answer) -> list[bool]:
+    """A 150-step random walk of the arm of :func:`arm_scene` near its box: at every step
+    ``answer(q)`` (the check under test, on an arm of its own) must be the plain answer in
+    a client where every check is the first (its manifolds flushed by moving the arm away
+    and back).  Returns the answers; the walk touches the box and leaves it."""
+    f, first = arm_scene()
     base = pb.getBasePositionAndOrientation(first.body, physicsClientId=f)
-    not_base = lambda pt: pt[3] == -1  # noqa: E731
     rng = np.random.default_rng(1)
     q, answers = HOME.copy(), []
     for _ in range(150):
         q = np.clip(q + rng.normal(0.0, 0.08, 7), LOWER, UPPER)
-        arm.set(q)
-        first.set(q)
-        answers.append(contacts.collides(c, arm.body, not_base))
-        assert answers[-1] == contacts.cached_collides(f, first.body, not_base)
+        answers.append(answer(q))
+        assert answers[-1] == first.collides_at(q)
         pb.resetBasePositionAndOrientation(first.body, [50.0, 0.0, 0.0], base[1],
                                            physicsClientId=f)
         pb.performCollisionDetection(physicsClientId=f)
         pb.resetBasePositionAndOrientation(first.body, *base, physicsClientId=f)
-    assert 10 < sum(answers) < 140  # the walk touches the box and leaves it
-    pb.disconnect(c)
     pb.disconnect(f)
+    assert 10 < sum(answers) < 140
+    return answers
+
+
+def test_panda_answers_agree_with_a_client_without_history():
+    """The fresh answer (self-collision on, base link ignored) on the walk of
+    :func:`walk_near_a_box`."""
+    c, arm = arm_scene()
+    not_base = lambda pt: pt[3] == -1  # noqa: E731
+
+    def fresh(q) -> bool:
+        arm.set(q)
+        return contacts.collides(c, arm.body, not_base)
+
+    walk_near_a_box(fresh)
+    pb.disconnect(c)
 
 
 def test_box_pairs_are_confirmed_like_pybullets_box_test(scene):

@@ -17,12 +17,11 @@ from pipeline.domains.pick_place.scene import PickPlaceScene
 from pipeline.sim import contacts
 from pipeline.sim import fast_check as FC
 from pipeline.sim.mobile import PLATFORM, PLATFORM_LIFT, MobilePanda
-from pipeline.sim.panda import HOME, LOWER, UPPER, Panda
 from pipeline.sim.world import add_box, connect
 from pipeline.store import ScoreStore
 from tests import pipeline_runs as pr
 from tests.test_bad_inputs import bad_input, composed
-from tests.test_contacts import BESIDE, FAR, ROD, SUNK, TABLE
+from tests.test_contacts import BESIDE, FAR, ROD, SUNK, TABLE, arm_scene, walk_near_a_box
 
 #: a table for the mobile robot, far from where it stands: TABLE's pose moved by OFFSET
 OFFSET = np.array([4.0, 4.0, 0.0])
@@ -52,29 +51,11 @@ def test_planar_has_no_contacts_key_and_refuses_it_in_one_line(tmp_path):
 
 
 def test_a_fixed_arm_answers_as_a_client_without_history():
-    """Panda.collides_at on a random walk near a box: with fresh contacts, every answer is
+    """Panda.collides_at with fresh contacts on a random walk near a box: every answer is
     the plain answer of a client whose pairs are flushed before each check."""
-    def arm_scene(setting):
-        client = connect()
-        arm = Panda(client, [0.0, 0.0, 0.0], contacts=setting)
-        add_box(client, (0.3, 0.8, 0.4), (0.55, 0.0, 0.2))
-        return client, arm
-
-    (c, arm), (f, first) = arm_scene("fresh"), arm_scene("cached")
-    base = pb.getBasePositionAndOrientation(first.body, physicsClientId=f)
-    rng = np.random.default_rng(1)
-    q, answers = HOME.copy(), []
-    for _ in range(150):
-        q = np.clip(q + rng.normal(0.0, 0.08, 7), LOWER, UPPER)
-        answers.append(arm.collides_at(q))
-        assert answers[-1] == first.collides_at(q)
-        pb.resetBasePositionAndOrientation(first.body, [50.0, 0.0, 0.0], base[1],
-                                           physicsClientId=f)
-        pb.performCollisionDetection(physicsClientId=f)
-        pb.resetBasePositionAndOrientation(first.body, *base, physicsClientId=f)
-    assert 10 < sum(answers) < 140  # the walk touches the box and leaves it
-    pb.disconnect(c)
-    pb.disconnect(f)
+    client, arm = arm_scene(contacts="fresh")
+    walk_near_a_box(arm.collides_at)
+    pb.disconnect(client)
 
 
 def _platform_scene(setting):
