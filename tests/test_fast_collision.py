@@ -441,3 +441,56 @@ def test_path_lengths_are_bitwise_those_of_the_norm_formula():
         assert path_length(path) == float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
     assert path_length(np.zeros((1, 7))) == 0.0
     assert path_length([[0.0, 0.0], [3.0, 4.0]]) == 5.0
+
+
+_NO_MORE_KERNELS = """
+import json, sys
+import numpy as np
+from numba.core.registry import CPUDispatcher
+from pipeline import worker
+from pipeline.sim import collide, fast_check
+from tests import replay
+
+fast_check.compile_kernels()
+kernels = {n: k for n in dir(collide) if isinstance(k := getattr(collide, n), CPUDispatcher)}
+before = {n: len(k.signatures) for n, k in kernels.items()}
+for store in replay.stored()["stores"]:
+    if store["store"] not in ("grasp_arm.zarr", "grasp_base.zarr", "pick_place.zarr"):
+        continue
+    config = {k: v for k, v in store["domain"].items() if k != "name"}
+    spec = {"name": store["domain"]["name"], "config": config,
+            "planner": {**store["planner"], "collision": "spheres"}}
+    worker.score_block(spec, 0, [json.dumps(i) for i in store["instances"][:3]],
+                       [i["seed"] for i in store["instances"][:3]], np.array(store["theta"]), 0)
+# several rows in one check (a path recheck): the pre-check's proofs run on the robot's own
+# arrays, not on the packed copies the scan takes
+from pipeline.domains.cache import domain_for
+from pipeline.sim.panda import LOWER, UPPER
+store = next(s for s in replay.stored()["stores"] if s["store"] == "grasp_arm.zarr")
+domain = domain_for({"name": "grasp_arm", "config": {}, "planner": store["planner"]})
+scene = domain.scene(domain.check_instance(store["instances"][0]))
+rows = np.random.default_rng(0).uniform(LOWER, UPPER, (200, 7))
+model = fast_check.certified(scene.arms[0])
+while len(rows):
+    ok, used = model.check(rows)
+    rows = rows[used:]
+print(json.dumps({n: [str(s) for s in k.signatures[before[n]:]] for n, k in kernels.items()
+                  if len(k.signatures) > before[n]}))
+"""
+
+
+def test_planning_compiles_no_kernel_that_compile_kernels_did_not():
+    """compile_kernels runs before a planning call's wall-clock cap starts so that numba
+    never compiles inside one; that holds only if planning calls the kernels with the
+    argument types it compiled (a read-only array is another type).  A fresh process
+    plans replay entries of the three Panda domains after compile_kernels."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run([sys.executable, "-c", _NO_MORE_KERNELS], cwd=root,
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert json.loads(done.stdout.strip().splitlines()[-1]) == {}

@@ -482,7 +482,9 @@ def _inner_arrays(inner) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if inner is None:
         return np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0)
     frames, centres, radii = inner[:3]
-    return (np.asarray(frames, dtype=np.int64), np.asarray(centres, float).reshape(-1, 3),
+    # a copy: the sphere model's frames are read-only, and numba compiles a kernel once
+    # more for a read-only array (compile_kernels' arrays are writable)
+    return (np.array(frames, dtype=np.int64), np.asarray(centres, float).reshape(-1, 3),
             np.asarray(radii, float))
 
 
@@ -957,7 +959,10 @@ def compile_kernels() -> None:
                   np.zeros((0, 3)), np.zeros(0), [-1])
     frames = _arm_frames_fn(np.eye(4))(np.zeros((2, 7)))
     robot.first(frames, world, 0, np.zeros(2, dtype=np.bool_))
-    robot.surely_hits(frames, 0, world)
+    robot.surely_hits(frames, 0, world)  # stops at its first proof: the other two as well
+    boxes = (world.box_c, world.box_R, world.box_h, world.box_r, PROOF_DEPTH)
+    collide.box_hit(frames, 0, robot.rbox_frame, robot.rbox_T, robot.rbox_solid, *boxes)
+    collide.sphere_hit(frames, 0, robot.in_frame, robot.in_c, robot.in_r, *boxes)
     collide.planar_frames(np.zeros((1, 3)), 1.0, np.empty((1, 1, 3, 4)))
     collide.wrist_cells(np.zeros((1, 7)), np.zeros(2), wrist.STEP, np.ones((2, 2), np.int8),
                         np.empty(1, dtype=np.bool_))
