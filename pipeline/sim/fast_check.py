@@ -803,21 +803,26 @@ def arm_checker(client: int, arm_body: int, ignored_pairs, exact, *, held=None,
 
 def base_checker(client: int, arm_body: int, platform: int, base_pose: np.ndarray,
                  psi_scale: float, exact, internal_free: bool, *, held=None,
-                 world_key=None) -> SphereChecker:
+                 held_key=None, world_key=None) -> SphereChecker:
     """Checker for base motions (x, y, psi_scale · ψ) of a mobile arm, arm fixed.
 
     ``base_pose`` is the base's current 4 × 4 transform (its frame: on the floor under the
     platform's centre); the arm and the platform keep their poses in it.  ``held``: None or
     (body, pose in the base frame) of the carried box.  Contacts within the robot do not
     change while the base moves: ``internal_free`` says the caller ruled them out at the
-    current state (else every row goes to ``exact``).  ``world_key``: see
-    :func:`read_world`.
+    current state (else every row goes to ``exact``).  ``held_key``: None, or what fixes
+    the carried box's pose exactly (its pose in the hand, with the arm's state): the
+    robot model is remembered under it rather than under ``held``'s pose, which pybullet's
+    kinematics give only to about 1e-7 m, a little differently at every base pose (so
+    every planning call would build the model again; the margins of :data:`GAPS` are
+    three orders above that).  ``world_key``: see :func:`read_world`.
     """
     if not internal_free:
         return SphereChecker(None, None, None, exact, certified=False)
     q = arm_state(client, arm_body)
     key = ("base", client, arm_body, platform, _key_of(q),
-           None if held is None else (_shape_key(client, held[0]), _key_of(held[1])))
+           None if held is None else (_shape_key(client, held[0]),
+                                      _key_of(held[1]) if held_key is None else held_key))
     robot = _ROBOTS.get(key, lambda: _base_robot(client, arm_body, platform, base_pose, q,
                                                   held))
     if robot is None:
@@ -1002,7 +1007,9 @@ def certified_mobile_base(model) -> CertifiedRobot:
     r.set_base(r.pose)  # the held object where base checks will put it
     return CertifiedRobot(model, base_checker(
         r.client, r.body, r.platform, r.base_frame(), model.psi_scale, model.collides,
-        _internal_free(r), held=_held(r, hand=False), world_key=_world_key(r)))
+        _internal_free(r), held=_held(r, hand=False),
+        held_key=None if r.held is None else ("in hand", _key_of(r.held_in_tcp)),
+        world_key=_world_key(r)))
 
 
 def _shape_key(client: int, body: int) -> tuple:
