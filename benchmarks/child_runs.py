@@ -49,9 +49,16 @@ def export_revision(rev: str, into: Path, parts=("pipeline", "conf")) -> Path | 
 def agreement(a: Path, b: Path, columns) -> np.ndarray:
     """(entries,) whether every one of ``columns`` of two saved variants agrees bit for bit
     (NaN where both are NaN, as failures' lengths are)."""
-    x, y = np.load(a), np.load(b)
-    agree = np.ones(x["status"].shape, dtype=bool)
+    return columns_agree(np.load(a), np.load(b), columns)
+
+
+def columns_agree(x, y, columns, rtol: float = 0.0, atol: float = 0.0) -> np.ndarray:
+    """Per entry, whether every one of ``columns`` of the result arrays ``x`` and ``y``
+    (mappings of name to array) agrees: equal, floats within ``rtol``/``atol`` (both 0:
+    bit for bit; NaN where both are NaN)."""
+    agree = np.ones(np.shape(x["status"]), dtype=bool)
     for k in columns:
-        u, v = x[k], y[k]
-        agree &= (u == v) | (np.isnan(u) & np.isnan(v)) if u.dtype.kind == "f" else (u == v)
+        u, v = np.asarray(x[k]), np.asarray(y[k])
+        agree &= (np.isclose(u, v, rtol=rtol, atol=atol, equal_nan=True)
+                  if u.dtype.kind == "f" else u == v)
     return agree
