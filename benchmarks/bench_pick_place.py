@@ -21,9 +21,9 @@ path length and score, bit for bit.
 Variants: ``new`` (this checkout, the default ``planner.collision=spheres``), ``exact``
 (this checkout, ``planner.collision=exact``) and ``base`` (the default setting at git
 revision ``--baseline-rev``, exported with ``git archive``; ``--baseline-rev ''`` skips it).
-``--contacts fresh`` runs ``new`` and ``exact`` with ``domain.contacts=fresh`` (every
-cached penetration confirmed afresh: docs/contacts.md); ``base`` keeps its revision's
-default.
+``new`` and ``exact`` run with ``domain.contacts=--contacts`` (``fresh``, the default since
+2026-11-27: every cached penetration confirmed afresh, docs/contacts.md; ``cached``: the
+points as pybullet keeps them, the default before); ``base`` keeps its revision's default.
 
 Run: python benchmarks/bench_pick_place.py [--raw 40] [--instances 8] [--constraints 40]
          [--repeats 3] [--baseline-rev 641b270] [--contacts cached|fresh] [--profile]
@@ -134,7 +134,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=2017)
     ap.add_argument("--baseline-rev", default=BASELINE_REV)
-    ap.add_argument("--contacts", choices=("cached", "fresh"), default="cached",
+    ap.add_argument("--contacts", choices=("cached", "fresh"), default="fresh",
                     help="domain.contacts of the new and exact variants")
     ap.add_argument("--profile", action="store_true", help="cProfile the last repeat")
     ap.add_argument("--child", help=argparse.SUPPRESS)
@@ -158,7 +158,7 @@ def main() -> None:
             for v in names[r % len(names):] + names[: r % len(names)]:
                 root, collision = variants[v]
                 last = args.profile and r == args.repeats - 1 and v == "new"
-                contacts = None if v == "base" or args.contacts == "cached" else args.contacts
+                contacts = None if v == "base" else args.contacts
                 times[v].append(run(v, root, collision, data, tmp / f"{v}.npz", last,
                                     contacts))
         report(args, times, tmp, variants)
@@ -173,9 +173,9 @@ def report(args, times: dict, tmp: Path, variants: dict) -> None:
           f"{n // args.instances} constraints = {n} entries per run, one core, median of "
           f"{args.repeats} runs per variant")
     print(f"  {'variant':<50}{'wall ms/entry':>15}{'cpu ms/entry':>14}{'/ new':>9}")
-    fresh = ", contacts=fresh" if args.contacts == "fresh" else ""
-    label = {"new": f"new (planner.collision=spheres{fresh})",
-             "exact": f"new, planner.collision=exact{fresh}",
+    contacts = f", contacts={args.contacts}"
+    label = {"new": f"new (planner.collision=spheres{contacts})",
+             "exact": f"new, planner.collision=exact{contacts}",
              "base": f"baseline {args.baseline_rev} (spheres)"}
     for v in variants:
         ratio = med[v]["cpu_ms"] / med["new"]["cpu_ms"]

@@ -33,7 +33,7 @@ def main(cfg) -> None:
     err = Console(stderr=True)
     try:
         validate(cfg)  # every key, whatever the stage, before anything is opened or written
-        run_pipeline(cfg, console)
+        run_pipeline(cfg, console, explicit=explicit_keys())
     except (StoreError, ValueError) as exc:
         _end(err, "error", exc, BAD_INPUT)
     except StoreDamaged as exc:
@@ -50,6 +50,18 @@ def main(cfg) -> None:
     except KeyboardInterrupt:
         err.print("interrupted: finished blocks are saved; re-run the same command to resume")
         sys.exit(INTERRUPTED)
+
+
+def explicit_keys() -> frozenset[str]:
+    """The dotted config keys this job's command line set (Hydra's overrides of the task, a
+    sweep's values included).  A store made before a key's default changed continues under
+    the value it was made with unless the key is among these
+    (:func:`pipeline.configs.earlier_values`)."""
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    task = list(HydraConfig.get().overrides.task)
+    return frozenset(o.key_or_group for o in OverridesParser.create().parse_overrides(task))
 
 
 def _end(err: Console, kind: str, exc: Exception, code: int) -> None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import enum
 import hashlib
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 from omegaconf import MISSING, OmegaConf
@@ -22,8 +22,8 @@ from pipeline.plugins import problem
 from pipeline.yaml_configs import CONF_DIR, load_yaml_config, planner_settings
 
 __all__ = ["CONF_DIR", "Config", "PlannerSettings", "comparable", "differing_keys",
-           "identity", "load_yaml_config", "matching_identity", "planner_settings",
-           "register_configs"]
+           "earlier_values", "identity", "load_yaml_config", "matching_identity",
+           "planner_settings", "register_configs", "with_earlier_values"]
 
 
 class Stage(enum.Enum):
@@ -306,12 +306,45 @@ def matching_identity(stored: dict | None, wanted: dict) -> dict:
 #: that reproduces what every store made before it computed.  ``identity`` leaves such a
 #: key out while it has that value, so a store made before the key existed (whose identity
 #: never had it) still matches and resumes; any other value is recorded, and a store made
-#: with it refuses to continue under the old value (and the reverse).  A key added from now
-#: on whose default keeps D as it was belongs here, with that default.
+#: with it refuses to continue under the old value (and the reverse).  A key's default may
+#: later move away from that value (``domain.contacts``: ``fresh`` since 2026-11-27): a run
+#: that does not set the key itself continues such a store under the old value
+#: (:func:`earlier_values`), and a recorded config that lacks the key is read with it
+#: (:func:`with_earlier_values`).
 LATER_KEYS = {
     "domain.ik": "damped",  # pybullet's damped IK (pipeline.domains.ik.solve_ik)
     "domain.contacts": "cached",  # pybullet's cached contact points (docs/contacts.md)
 }
+
+
+def earlier_values(stored: dict | None, wanted: dict, explicit=frozenset()) -> dict[str, Any]:
+    """The LATER_KEYS a run takes from an existing store rather than from its defaults:
+    those the store's identity ``stored`` lacks (so it was made under their old value) while
+    this run's identity ``wanted`` holds another value, unless the run set the key itself
+    (``explicit``: dotted keys, as on the command line; then the store is refused as made
+    with a different config).  {dotted key: old value}."""
+    if not stored:
+        return {}
+    have, want = flatten(comparable(stored)), flatten(comparable(wanted))
+    return {key: old for key, old in LATER_KEYS.items()
+            if key in want and key not in have and key not in explicit}
+
+
+def with_earlier_values(config: dict) -> dict:
+    """A recorded run config (a store's ``config`` attribute, a replay file's entry) with
+    every LATER_KEY of the domain that it lacks set to the key's old value: it was recorded
+    before the key existed, when every run computed that value.  Keys the domain's schema
+    does not declare (``planar`` has no ``contacts``) stay absent."""
+    domain = dict(config.get("domain") or {})
+    try:
+        declared = {f.name for f in fields(domain_schema(domain.get("name")))}
+    except (ValueError, ImportError, TypeError):
+        return config  # an unknown domain (load_domain names it), or a schema of no fields
+    for key, old in LATER_KEYS.items():
+        top, _, name = key.partition(".")
+        if top == "domain" and name in declared and name not in domain:
+            domain[name] = old
+    return {**config, "domain": domain}
 
 
 def _drop_if(ident: dict, key: str, value) -> None:

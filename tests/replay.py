@@ -34,11 +34,14 @@ def stored() -> dict:
 
 
 def domain_of(store: dict):
-    """The store's domain and planner; the wall-clock safety net out of reach, so that a
-    loaded machine cannot turn a stored entry into "timeout"."""
+    """The store's domain and planner, with the values of keys added since it was recorded
+    that it was computed with (``domain.contacts=cached``); the wall-clock safety net out of
+    reach, so that a loaded machine cannot turn a stored entry into "timeout"."""
+    from pipeline.configs import with_earlier_values
     from pipeline.domains import load_domain
 
-    config = {k: v for k, v in store["domain"].items() if k != "name"}
+    recorded = with_earlier_values({"domain": store["domain"]})["domain"]
+    config = {k: v for k, v in recorded.items() if k != "name"}
     planner = {**store["planner"], "wall_cap_s": 1e6}
     return load_domain(store["domain"]["name"], planner=planner, **config)
 

@@ -11,7 +11,13 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from pipeline.configs import LATER_KEYS, differing_keys, identity
+from pipeline.configs import (
+    LATER_KEYS,
+    differing_keys,
+    earlier_values,
+    identity,
+    with_earlier_values,
+)
 from pipeline.domains.geometry import Box
 from pipeline.domains.pick_place.scene import PickPlaceScene
 from pipeline.sim import contacts
@@ -38,10 +44,30 @@ def test_identity_records_contacts_only_when_fresh():
         plain = identity(composed(f"domain={name}"))
         cached = identity(composed(f"domain={name}", "domain.contacts=cached"))
         fresh = identity(composed(f"domain={name}", "domain.contacts=fresh"))
-        assert plain == cached and "contacts" not in cached["domain"]
-        assert fresh["domain"]["contacts"] == "fresh"
+        assert plain == fresh and fresh["domain"]["contacts"] == "fresh"  # the default
+        assert "contacts" not in cached["domain"]  # as in every store made before the key
         assert differing_keys(cached, fresh) == ["domain.contacts"]
     assert "contacts" not in identity(composed("domain=planar"))["domain"]
+
+
+def test_a_config_recorded_before_the_key_is_read_as_cached():
+    """A store's config (or a replay file's) from before the key existed was computed with
+    pybullet's cached contacts: that is how workers and replays read it, not as today's
+    default; a domain without the key (planar) gets none."""
+    old = {"seed": 1, "domain": {"name": "pick_place", "psi_scale": 1.0}}
+    assert with_earlier_values(old)["domain"]["contacts"] == "cached"
+    assert with_earlier_values(old)["seed"] == 1 and "contacts" not in old["domain"]
+    assert with_earlier_values({"domain": {"name": "grasp_arm", "contacts": "fresh"}})[
+        "domain"]["contacts"] == "fresh"
+    assert "contacts" not in with_earlier_values({"domain": {"name": "planar"}})["domain"]
+
+
+def test_only_an_unset_key_takes_the_stores_earlier_value():
+    before = identity(composed("domain=pick_place", "domain.contacts=cached"))
+    now = identity(composed("domain=pick_place"))
+    assert earlier_values(before, now) == {"domain.contacts": "cached"}
+    assert earlier_values(before, now, explicit={"domain.contacts"}) == {}
+    assert earlier_values(now, now) == {} and earlier_values(None, now) == {}
 
 
 def test_planar_has_no_contacts_key_and_refuses_it_in_one_line(tmp_path):
@@ -111,18 +137,42 @@ def test_the_platforms_touch_test_follows_the_setting(fresh):
     pb.disconnect(client)
 
 
-def test_a_fresh_store_records_the_setting_and_refuses_to_go_on_cached(tmp_path):
-    """The setting reaches the store (identity and config, which workers and replays plan
-    with), and a run under the default refuses the store in one line naming the key."""
+#: a grasp_arm store of 3 x 4 entries, planned by one worker
+TINY = ("domain=grasp_arm", "instances.n=3", "constraints.m=4", "store.block_instances=3",
+        "store.block_constraints=4", "cluster.n_workers=1")
+
+
+def test_a_default_store_records_fresh_and_refuses_to_go_on_cached(tmp_path):
+    """The default reaches the store (identity and config, which workers and replays plan
+    with), and a run that asks for ``cached`` refuses the store in one line naming the key,
+    leaving it as it was."""
     store = tmp_path / "s.zarr"
-    tiny = ("domain=grasp_arm", "instances.n=3", "constraints.m=4", "store.block_instances=3",
-            "store.block_constraints=4", "cluster.n_workers=1")
-    res = pr.run(store, *tiny, "domain.contacts=fresh")
+    res = pr.run(store, *TINY)
     assert res.returncode == 0, res.stderr
     attrs = ScoreStore(store).attrs
     assert attrs["identity"]["domain"]["contacts"] == "fresh"
     assert attrs["config"]["domain"]["contacts"] == "fresh"
     before = pr.matrix(store)
-    res = pr.run(store, *tiny)
+    res = pr.run(store, *TINY, "domain.contacts=cached")
     bad_input(res, "domain.contacts")
     assert pr.same_matrix(before, pr.matrix(store))
+
+
+def test_a_store_made_before_the_default_changed_resumes_cached(tmp_path):
+    """A store made under ``cached`` without recording it (every store before 2026-11-27),
+    stopped after its first stage: the same command, now under the ``fresh`` default,
+    finishes it with ``cached`` and says so; asking for ``fresh`` on it is refused."""
+    store = tmp_path / "s.zarr"
+    res = pr.run(store, *TINY, "domain.contacts=cached", "stage=instances")
+    assert res.returncode == 0, res.stderr
+    made = ScoreStore(store).attrs["identity"]
+    assert "contacts" not in made["domain"]
+    res = pr.run(store, *TINY, "domain.contacts=fresh")
+    bad_input(res, "domain.contacts")
+    res = pr.run(store, *TINY)
+    assert res.returncode == 0, res.stderr
+    assert "made with domain.contacts=cached" in " ".join(res.stdout.split())
+    attrs = ScoreStore(store).attrs
+    assert attrs["identity"] == made and attrs["config"]["domain"]["contacts"] == "cached"
+    assert attrs["stages"]["scores"]["finished"]
+    assert pr.run(store, *TINY).returncode == 0  # complete: nothing to do, still cached

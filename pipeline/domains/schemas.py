@@ -59,7 +59,7 @@ class GraspArmConfig:
     pregrasp_offset: float = 0.10
     ik_restarts: int = 4  # damped: IK runs; analytic: solutions collision-checked; at most
     ik: str = "damped"  # or "analytic": frankik's closed-form IK (pipeline.sim.analytic_ik)
-    contacts: str = "cached"  # or "fresh": cached penetrations confirmed anew (docs/contacts.md)
+    contacts: str = "fresh"  # or "cached": stores made before 2026-11-27 (docs/contacts.md)
 
     def __post_init__(self):
         _obstacle_range(self.obstacles_min, self.obstacles_max)
@@ -84,7 +84,7 @@ class GraspBaseConfig:
     pregrasp_offset: float = 0.10
     ik_restarts: int = 10  # damped: IK runs; analytic: solutions collision-checked; at most
     ik: str = "damped"  # or "analytic": frankik's closed-form IK (pipeline.sim.analytic_ik)
-    contacts: str = "cached"  # or "fresh": cached penetrations confirmed anew (docs/contacts.md)
+    contacts: str = "fresh"  # or "cached": stores made before 2026-11-27 (docs/contacts.md)
     raw_base_samples: int = 40  # collision-free base poses RAWPLANNER tries before giving up
 
     def __post_init__(self):
@@ -108,7 +108,7 @@ class PickPlaceConfig:
     pregrasp_offset: float = 0.10
     ik_restarts: int = 10  # damped: IK runs; analytic: solutions collision-checked; at most
     ik: str = "damped"  # or "analytic": frankik's closed-form IK (pipeline.sim.analytic_ik)
-    contacts: str = "cached"  # or "fresh": cached penetrations confirmed anew (docs/contacts.md)
+    contacts: str = "fresh"  # or "cached": stores made before 2026-11-27 (docs/contacts.md)
     psi_scale: float = 0.5  # metres per radian of base rotation (path metric)
     arm_weight: float = 0.1  # metres per radian of arm motion (score)
     base_max_checks: int = 4000  # collision checks per base path, both legs together

@@ -121,11 +121,12 @@ def stage_solve(run: Run) -> None:
     solve(run.context(), output_dir(run.plain["solve"]["dir"], "solve"))
 
 
-def run_pipeline(cfg, console: Console) -> None:
+def run_pipeline(cfg, console: Console, explicit=frozenset()) -> None:
     """Run ``cfg.stage`` (raises StoreError / ValueError for bad input, StoreDamaged when
-    ``stage=status`` finds damage)."""
+    ``stage=status`` finds damage).  ``explicit``: the keys the command line set
+    (:class:`Run`)."""
     stage = cfg.stage if isinstance(cfg.stage, Stage) else Stage(cfg.stage)
-    run = Run(cfg, console)
+    run = Run(cfg, console, explicit)
     if stage is Stage.status:
         from pipeline.store.status import damaged, print_status
 

@@ -47,20 +47,15 @@ INPUTS = STAGE_INPUTS
 class Run:
     """One invocation: the resolved config, the store, and a Dask client when needed."""
 
-    def __init__(self, cfg, console: Console):
-        self.cfg = cfg
+    def __init__(self, cfg, console: Console, explicit=frozenset()):
         self.console = console
-        self.plain = OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)
-        validation.check_values(self.plain)  # also when stages run without the entry point
+        #: the dotted keys the command line set (``pipeline.__main__.explicit_keys``)
+        self.explicit = frozenset(explicit)
+        self._configure(cfg)
         planner = configs.planner_settings(self.plain["planner"])
-        self.domain_spec = domain_spec_of(self.plain)
-        name = self.domain_spec["name"]
-        self.domain = load_domain(name, planner=planner, **self.domain_spec["config"])
-        path = cfg.store.path or default_path(name, planner_label(planner), cfg.seed)
+        path = cfg.store.path or default_path(self.domain.name, planner_label(planner), cfg.seed)
         self.location = locate(path, self.plain["store"].get("storage_options"))
         self.path = self.location.path
-        self.identity = configs.identity(cfg)
-        self.identity_hash = configs.config_hash(self.identity)
         #: names this run's tasks: two runs on one scheduler never share a future
         self.token = (configs.config_hash({"store": str(self.location)})[:8] + "-"
                       + uuid.uuid4().hex[:8])
@@ -76,6 +71,37 @@ class Run:
         #: the report's jobs started early (``stage=all``: pipeline.report.jobs), or None
         self.report_jobs = None
 
+    def _configure(self, cfg) -> None:
+        """The config and what follows from it: the domain (as this process and the
+        workers build it) and the identity."""
+        self.cfg = cfg
+        self.plain = OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)
+        validation.check_values(self.plain)  # also when stages run without the entry point
+        self.domain_spec = domain_spec_of(self.plain)
+        self.domain = load_domain(self.domain_spec["name"],
+                                  planner=configs.planner_settings(self.plain["planner"]),
+                                  **self.domain_spec["config"])
+        self.identity = configs.identity(cfg)
+        self.identity_hash = configs.config_hash(self.identity)
+
+    def _keep_earlier_values(self, stored: dict | None) -> None:
+        """Continue a store made before a key's default changed under the value it was made
+        with (:func:`pipeline.configs.earlier_values`), unless the command line set the key
+        or asked to overwrite the store, and say so."""
+        if self.cfg.store.mode is configs.StoreMode.overwrite:
+            return
+        earlier = configs.earlier_values(stored, self.identity, self.explicit)
+        if not earlier:
+            return
+        cfg = self.cfg.copy()
+        for key, value in earlier.items():
+            OmegaConf.update(cfg, key, value)
+        self._configure(cfg)
+        for key, value in earlier.items():
+            self.say(f"store: made with {key}={value} (its identity does not record that "
+                     f"value); continuing with it, while {key}=... on the command line "
+                     "would refuse the store")
+
     # -- resources -------------------------------------------------------------------------
     def open_for_reading(self) -> ScoreStore | None:
         """A read-only view of the existing store made with this config, or None when
@@ -89,6 +115,7 @@ class Run:
             return None
         store = ScoreStore.checked(self.location)
         self._checked_ours = True
+        self._keep_earlier_values(store.attrs.get("identity"))
         self._adopt(store.attrs.get("identity"))
         if store.attrs.get("identity") != self.identity:
             return None  # prepare() refuses it, or replaces it with store.mode=overwrite

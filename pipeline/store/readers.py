@@ -66,7 +66,9 @@ class Readers:
         if "name" not in (config.get("domain") or {}) or "planner" not in config:
             raise StoreError(f"{self.path}: the store's attributes hold no domain config "
                              "(damaged store?)")
-        return domain_spec_of(config)
+        from pipeline.configs import with_earlier_values
+
+        return domain_spec_of(with_earlier_values(config))
 
     def instance_seeds(self) -> np.ndarray:
         return self.array(INSTANCE_SEED)[...]
