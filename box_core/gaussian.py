@@ -32,6 +32,16 @@ from box_core.prior import FoldPriors
 #: ordered by floating-point noise from BLAS summation order.
 TIE_REL = 1e-9
 
+#: ``drop_observed``: W's main columns are kept a multiple of SLOT_ALIGN (4 keeps each of
+#: them in OpenBLAS's vector kernel, 8 also in each half of a product split over 2
+#: threads), and W is repacked once REPACK_DEAD of them are dead.
+SLOT_ALIGN = 8
+REPACK_DEAD = 1 / 8
+#: (m, t, width) -> whether the product over repacked columns rounds as the one over all
+#: m columns (GaussianPosterior._exact_slots), per process, and its random numbers
+_SLOT_VERDICT: dict[tuple[int, int, int], bool] = {}
+_SLOT_PROBE = np.zeros((0, 0))
+
 
 class GaussianPosterior:
     """Posterior over the score vectors of B instances, updated one observation at a time.
@@ -72,12 +82,13 @@ class GaussianPosterior:
     #: Instances whose W has zero rows are multiplied in groups of this many bytes of W.
     SCRATCH_BYTES = 4 << 20
 
-    def __init__(self, prior: FoldPriors, capacity: int = 16, skip_inert: bool = True):
+    def __init__(self, prior: FoldPriors, capacity: int = 16, skip_inert: bool = True,
+                 drop_observed: np.ndarray | bool = False):
         self.prior = prior
         size, m = prior.size, prior.m
-        self.mean = prior.mean.copy()
+        self._mean = prior.mean.copy()
         self.prior_var = prior.diag()
-        self.var = self.prior_var.copy()
+        self._var = self.prior_var.copy()
         self.eps = prior.jitter()
         self.scale = np.sqrt(np.maximum(self.prior_var.max(axis=1), 0.0))
         self.inert = prior.inert() if skip_inert else np.zeros(m, dtype=bool)
@@ -102,6 +113,29 @@ class GaussianPosterior:
         self._rows = np.arange(size)
         self._full = True  # no inert observation yet: every instance's W is all stored
         self._scratch = np.zeros((0, 0, 0))
+        self.slots = None
+        # drop_observed (True, or the (B, m) mask of columns never to be observed, which
+        # count as observed from the start): the caller never observes a column twice and
+        # never reads the posterior of an observed column (BOX masks tried columns).  W's
+        # columns of observed columns are then dead, and where W keeps all m columns each
+        # instance keeps its own: ``slots`` (B, width) names the column of each of W's
+        # columns (no column twice, dead ones marked in ``dead_slots``), and
+        # ``mean_slots`` and ``var_slots`` hold the posterior there (``mean`` and ``var``,
+        # (B, m), are filled in when asked for; at observed columns they mean nothing).
+        # Once REPACK_DEAD of W's columns are dead, live ones move into dead ones' places
+        # and W narrows (:meth:`_repack`): the products cost O(t (m - t)), not O(t m).
+        if drop_observed is not False and skip_inert and self._cols is None and size:
+            observed = (np.zeros((size, m), dtype=bool) if drop_observed is True
+                        else np.array(drop_observed, dtype=bool, copy=True))
+            tail = m & 3
+            self._live_main = (m - tail) - observed[:, :m - tail].sum(axis=1)
+            self.slots = np.tile(np.arange(m), (size, 1))
+            self._slot = self.slots.copy()  # column -> its column of W (live ones)
+            self.dead_slots = observed
+            self.mean_slots, self.var_slots = self._mean.copy(), self._var.copy()
+            self._cent = prior.centered.copy()
+            self._scatter_flat = prior.scatter.reshape(-1)
+            self._synced = True
 
     def _layout(self, size: int) -> None:
         """W's columns: all m, or (``_cols``) the columns that are not inert among the
@@ -144,6 +178,12 @@ class GaussianPosterior:
             alpha = np.empty((self.size, 2 * t))
             alpha[:, :t] = self._alpha
             self._alpha = alpha
+        if self.slots is not None:
+            if t:
+                self._maybe_repack(t)
+            seen = self._rows if skip is None else np.flatnonzero(~skip)
+            self._live_main[seen] -= cols[seen] < self.inert.size - (self.inert.size & 3)
+            self.dead_slots[seen, self._slot[seen, cols[seen]]] = True
         inert = self.inert[cols]
         if skip is not None:
             inert = inert | skip
@@ -180,14 +220,19 @@ class GaussianPosterior:
         count = self._count[rows]
         if (t if full else count.max(initial=0)) == self._W.shape[1]:
             self._grow()
-        at = cols if self._cols is None else self._at[cols]  # W's columns of cols
+        if self.slots is not None:
+            at = self._slot[rows, cols]
+        else:
+            at = cols if self._cols is None else self._at[cols]  # W's columns of cols
         dense = full or bool((count == t).all())  # W of these instances all stored
         if dense:
             lw = self._W[rows, :t, at]  # (B, t): W[b, :, cols[b]], the 'l' of the docstring
         else:
             lw = self._full_l(rows, at, count, t)
         cross = self._cov_rows(cols, folds)  # (B, width)
-        if t:
+        if t and self.slots is not None and not self._exact_slots(t):
+            self._subtract_spread(cross, rows, lw, t)
+        elif t:
             exact = self._exact(t)
             if dense and folds is None and exact:
                 cross -= np.matmul(lw[:, None, :], self._W[:, :t, :])[:, 0, :]
@@ -220,17 +265,33 @@ class GaussianPosterior:
             self._step[rows, count] = t
             self._count[rows] = count + 1
             self._alpha[rows, t] = a
+        if self.slots is not None:  # the same numbers, at each instance's own columns
+            if folds is None:
+                self.mean_slots += a[:, None] * w
+                self.var_slots -= w * w
+            else:
+                self.mean_slots[rows] += a[:, None] * w
+                self.var_slots[rows] -= w * w
+            self._synced = False
+            return
         if self._cols is not None:
             w = w[:, self._real]
             rows = np.ix_(rows, self._real_cols)
         elif folds is None:
             rows = slice(None)
-        self.mean[rows] += a[:, None] * w
-        self.var[rows] -= w * w
+        self._mean[rows] += a[:, None] * w
+        self._var[rows] -= w * w
 
     def _cov_rows(self, cols, folds) -> np.ndarray:
         """:meth:`FoldPriors.cov_rows` at W's columns: the same numbers."""
         prior = self.prior
+        if self.slots is not None:  # at each instance's own columns
+            idx = self._rows if folds is None else folds
+            at = prior.centered[idx, cols]
+            d = self._cent if folds is None else self._cent[folds]
+            scatter = np.take(self._scatter_flat, cols[:, None] * self.inert.size
+                              + self.slots[idx])
+            return prior.scale * (scatter - (prior.coef * at)[:, None] * d)
         if self._cols is None:
             return prior.cov_rows(cols, folds)
         idx = np.arange(prior.size) if folds is None else folds
@@ -297,6 +358,100 @@ class GaussianPosterior:
             self._verdict[t] = verdict
         return verdict
 
+    @property
+    def mean(self) -> np.ndarray:
+        """Posterior means, (B, m)."""
+        self._sync()
+        return self._mean
+
+    @property
+    def var(self) -> np.ndarray:
+        """Posterior variances, (B, m)."""
+        self._sync()
+        return self._var
+
+    def _sync(self) -> None:
+        if self.slots is not None and not self._synced:
+            np.put_along_axis(self._mean, self.slots, self.mean_slots, axis=1)
+            np.put_along_axis(self._var, self.slots, self.var_slots, axis=1)
+            self._synced = True
+
+    def _maybe_repack(self, t: int) -> None:
+        m = self.inert.size
+        main = self._W.shape[2] - (m & 3)
+        need = -(-int(self._live_main.max(initial=0)) // SLOT_ALIGN) * SLOT_ALIGN
+        if main - need >= REPACK_DEAD * main and need >= SLOT_ALIGN:
+            self._repack(t, need)
+
+    def _repack(self, t: int, main: int) -> None:
+        """Narrow W to ``main`` main columns (then the last m mod 4, which the product over
+        all m columns computes its own way, and so stay last): each instance's live
+        columns beyond them move into dead columns' places (W's buffer is kept: the
+        product reads W with its row stride)."""
+        m = self.inert.size
+        tail = m & 3
+        old = self._W.shape[2] - tail
+        W = self._W
+        keep = (self.slots, self.dead_slots, self.mean_slots, self.var_slots, self._cent)
+        for b in range(self.size):
+            src = main + np.flatnonzero(~self.dead_slots[b, main:old])
+            if src.size:
+                dst = np.flatnonzero(self.dead_slots[b, :main])[:src.size]
+                W[b, :t, dst] = W[b, :t, src]
+                for a in keep:
+                    a[b, dst] = a[b, src]
+                self._slot[b, self.slots[b, dst]] = dst
+        if tail:
+            W[:, :t, main:main + tail] = W[:, :t, old:old + tail].copy()
+            for a in keep:
+                a[:, main:main + tail] = a[:, old:old + tail].copy()
+            self._slot[:, m - tail:] = np.arange(main, main + tail)
+        width = main + tail
+        self._W = W[:, :, :width]
+        self.slots, self.dead_slots, self.mean_slots, self.var_slots, self._cent = (
+            np.ascontiguousarray(a[:, :width]) for a in keep)
+
+    def _exact_slots(self, t: int) -> bool:
+        """Whether the product over W's columns rounds each of them as the product over
+        all m columns does, at t rows: checked like :meth:`_exact`, once per shape and
+        process, on a random layout of the same shape (OpenBLAS computes each column alike
+        but for the last m mod 4, which stay last, so which columns W keeps does not
+        matter), read with W's row stride."""
+        m, width = self.inert.size, self._W.shape[2]
+        key = (m, t, width)
+        verdict = _SLOT_VERDICT.get(key)
+        if verdict is None:
+            if width == m:
+                verdict = True  # all columns, in place
+            elif (t + 1) * m > self.PROBE_ENTRIES:
+                verdict = False
+            else:
+                global _SLOT_PROBE
+                if _SLOT_PROBE.shape[1] != m or _SLOT_PROBE.shape[0] < t + 1:
+                    rows = max(t + 1, min(2 * _SLOT_PROBE.shape[0], m + 1,
+                                          self.PROBE_ENTRIES // m))
+                    _SLOT_PROBE = np.random.default_rng(20170529).standard_normal((rows, m))
+                tail = m & 3
+                pick = np.random.default_rng(t).permutation(m - tail)[:width - tail]
+                layout = np.concatenate([pick, np.arange(m - tail, m)])
+                W, lw = _SLOT_PROBE[:t], _SLOT_PROBE[t, :t]
+                full = np.matmul(lw, W)
+                strided = np.empty((t, self._W.strides[1] // 8))
+                strided[:, :width] = np.take(W, layout, axis=1)
+                narrow = np.matmul(lw, strided[:, :width])
+                verdict = bool(np.array_equal(full[layout], narrow))
+            _SLOT_VERDICT[key] = verdict
+        return verdict
+
+    def _subtract_spread(self, cross, rows, lw, t) -> None:
+        """cross[i] -= lw[i] @ W_b with W_b's columns back in their places among all m
+        (the dead ones 0): where the product over W's columns would round otherwise."""
+        m = self.inert.size
+        for i, b in enumerate(rows):
+            full = np.zeros((t, m))
+            full[:, self.slots[b]] = self._W[b, :t]
+            cross[i] -= np.matmul(lw[i], full)[self.slots[b]]
+
     def std(self) -> np.ndarray:
         """Posterior standard deviations, with round-off below zero clipped to 0."""
         return np.sqrt(np.maximum(self.var, 0.0))
@@ -305,9 +460,15 @@ class GaussianPosterior:
         """Drop every instance but ``folds`` (in that order) from the batch (increasing
         ``folds`` reuse W's buffer)."""
         self.prior = self.prior.subset(folds)
-        self.mean = self.mean[folds]
+        self._sync()
+        self._mean = self._mean[folds]
         self.prior_var = self.prior_var[folds]
-        self.var = self.var[folds]
+        self._var = self._var[folds]
+        if self.slots is not None:
+            self.slots, self._slot = self.slots[folds], self._slot[folds]
+            self.dead_slots, self._live_main = self.dead_slots[folds], self._live_main[folds]
+            self.mean_slots, self.var_slots = self.mean_slots[folds], self.var_slots[folds]
+            self._cent = self._cent[folds]
         self.eps = self.eps[folds]
         self.scale = self.scale[folds]
         if self._cols is not None:
@@ -345,6 +506,16 @@ def argmax_untried(values: np.ndarray, tried: np.ndarray, scale: np.ndarray) -> 
     Every row must have at least one untried column.
     """
     return argmax_masked(np.where(tried, -np.inf, values), scale)
+
+
+def argmax_untried_at(values: np.ndarray, dead: np.ndarray, scale: np.ndarray,
+                      columns: np.ndarray) -> np.ndarray:
+    """:func:`argmax_untried` of values given at ``columns`` (B, w) only (each untried
+    column once, in any order; ``dead`` marks the others): the same columns."""
+    masked = np.where(dead, -np.inf, values)
+    best = masked.max(axis=1)
+    tol = TIE_REL * np.maximum(np.abs(best), scale)
+    return np.where(masked >= (best - tol)[:, None], columns, np.iinfo(np.intp).max).min(axis=1)
 
 
 def argmax_masked(masked: np.ndarray, scale: np.ndarray) -> np.ndarray:

@@ -24,6 +24,7 @@ from box_core.gaussian import (
     argmax_masked,
     argmax_sequence,
     argmax_untried,
+    argmax_untried_at,
 )
 from box_core.prior import FoldPriors, Prior
 from box_core.tries import PAUSED
@@ -249,15 +250,23 @@ class Box(Policy):
         if not (math.isfinite(c) and c >= 0):
             raise ValueError(f"c must be a finite number >= 0, got {c!r}")
         self.c = float(c)
+        # BOX's own propose reads no tried column's posterior (one that overrides it may)
+        drop = type(self).propose is Box.propose and (
+            True if ctx.forbidden is None else ctx.forbidden)
         self.posterior = GaussianPosterior(ctx.prior, capacity=ctx.horizon or 16,
-                                           skip_inert=ctx.skip_inert)
+                                           skip_inert=ctx.skip_inert, drop_observed=drop)
         # untried columns whose posterior an observation can still move, per instance
         self._open = (~(self.tried | self.posterior.inert)).sum(axis=1)
 
     @classmethod
     def fold_batch(cls, n: int, m: int, k: int) -> int:
-        # Keep each batch's W (B x k x m doubles) near 8 MiB: it stays in cache while
-        # stepping, and bounds memory whatever n is.
+        # Keep the part of each batch's W that a step reads near 8 MiB: it stays in cache
+        # while stepping, and bounds memory whatever n is.  BOX's own W drops the columns
+        # it has tried (GaussianPosterior's drop_observed): at step t it reads about
+        # t (m - t) doubles per instance (plus what a repack leaves), otherwise t m.
+        if cls.propose is Box.propose:
+            t = min(k, m // 2)
+            return int(max(1, min(n, (10 << 20) // (9 * t * (m - t) + 8 * m))))
         return int(max(1, min(n, (8 << 20) // (8 * k * m))))
 
     @classmethod
@@ -283,7 +292,19 @@ class Box(Policy):
         return post.mean + self.coefficient() * std
 
     def propose(self) -> np.ndarray:
-        return argmax_untried(self.values(), self.tried, self.posterior.scale)
+        post = self.posterior
+        if post.slots is None:
+            return argmax_untried(self.values(), self.tried, post.scale)
+        # the same bounds at the untried columns (W's live columns): the same choice
+        return argmax_untried_at(self._bounds(post.mean_slots, post.var_slots),
+                                 post.dead_slots, post.scale, post.slots)
+
+    def _bounds(self, mean: np.ndarray, var: np.ndarray) -> np.ndarray:
+        """:meth:`values` from these posterior means and variances."""
+        factor = self.variance_factor()
+        std = (np.sqrt(np.maximum(var, 0.0)) if factor == 1.0
+               else np.sqrt(factor * np.maximum(var, 0.0)))
+        return mean + self.coefficient() * std
 
     def update(self, cols: np.ndarray, scores: np.ndarray) -> None:
         super().update(cols, scores)

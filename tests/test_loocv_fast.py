@@ -269,3 +269,56 @@ def test_until_feasible_without_constant_columns_stops_rows_too():
                                       full.first_feasible_time[name], err_msg=name)
         np.testing.assert_array_equal(short.first_feasible_step[name],
                                       full.first_feasible_step[name], err_msg=name)
+
+
+def _untried_agree(new, old, tried) -> bool:
+    """Posterior means and variances equal at the columns not yet observed (where BOX reads
+    them; a posterior that drops observed columns keeps nothing there)."""
+    return (np.array_equal(new.mean[~tried], old.mean[~tried])
+            and np.array_equal(new.var[~tried], old.var[~tried]))
+
+
+@pytest.mark.parametrize("m, exact_every", [(70, None), (45, None), (70, 3)])
+def test_dropping_observed_columns_keeps_the_posterior_of_the_rest(monkeypatch, m,
+                                                                   exact_every):
+    """``drop_observed``: W forgets the columns observed so far and narrows as they add up
+    (BOX never reads them again); the untried columns' posterior is the one that keeps
+    everything, bit for bit.  ``exact_every``: pretend BLAS rounds the narrowed product
+    otherwise at all but every third step, which then spreads W back to all columns."""
+    if exact_every:
+        monkeypatch.setattr(GaussianPosterior, "_exact_slots",
+                            lambda self, t: self._W.shape[2] == m or t % exact_every == 0)
+    seed, B = 7, 5
+    D, order = sequences(seed, B, m, np.array([], dtype=int), m - 1)
+    batch = Prior.fit(D).folds(np.arange(B))
+    old = reference.BatchedPosterior(batch, capacity=2)
+    new = GaussianPosterior(batch, capacity=2, drop_observed=True)
+    assert new.slots is not None
+    tried = np.zeros((B, m), dtype=bool)
+    rows = np.arange(B)
+    widths = set()
+    for cols in order:
+        scores = D[rows, cols]
+        new.observe(cols, scores)
+        old.observe(cols, scores)
+        tried[rows, cols] = True
+        widths.add(new._W.shape[2])
+        assert _untried_agree(new, old, tried)
+    assert min(widths) < m // 2  # W did narrow
+
+
+def test_box_that_drops_tried_columns_equals_the_unoptimised_path():
+    """No constant column (as on a real store, every constraint feasible somewhere), so
+    W keeps every column and BOX's tried ones are dropped: the same orders, times and
+    scores as the unoptimised path, with hidden columns and all m tries."""
+    n, m = 36, 66
+    D = well_conditioned(n, m, seed=21)
+    rng = np.random.default_rng(21)
+    F = rng.random((n, m)) < 0.3
+    T = rng.uniform(0.01, 1.0, (n, m))
+    hide = np.zeros((n, m), dtype=bool)
+    hide[np.arange(n), rng.integers(0, m, n)] = True
+    kw = dict(times=T, feasible=F, forbidden=hide, seed=6)
+    names = ("box", "pembo", "pembo_compounded")
+    assert_same(loocv(D, selectors=names, measure_overhead=False, **kw),
+                unoptimised(D, selectors=names, **kw))
