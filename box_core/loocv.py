@@ -149,8 +149,9 @@ def loocv(
 
     ``workers=2`` (or more) runs the selectors that tune their settings (``contextual``,
     ``contextual_capped``: nested leave-one-out, the costly part) in a second process
-    beside the others; the result is the same (each process measures its own selectors'
-    overhead).
+    beside the others; where none is asked for, the second process takes the second half
+    of the rows (from 64 rows on).  The result is the same (each process measures its own
+    selectors' overhead).
     """
     return _loocv(scores, times=times, feasible=feasible, selectors=selectors, k=k,
                   features=features, seed=seed, params=params, failure_rule=failure_rule,
@@ -162,12 +163,13 @@ def loocv(
 def _loocv(scores, *, times, feasible, selectors, k, features, seed, params, failure_rule,
            time_grid, measure_overhead, forbidden, rows=None, fast: bool = True,
            instance_features=None, checks=None, until_feasible: bool = False, workers=1,
-           only=None, part=None):
+           only=None, part=None, share=None):
     """:func:`loocv`; ``rows``: hold out only these rows (each still with the prior of
     all the others; the result's rows are these); ``fast=False``: the unoptimised path
     (every instance through every step, nothing skipped: the same result, slower);
-    ``only``, ``part``: just the traces of these selectors, the tuned ones over these
-    tuning groups (what a second process returns)."""
+    ``only``, ``part``, ``share``: just the traces of these selectors, the tuned ones over
+    these tuning groups, or the others over these held-out positions (what a second
+    process returns)."""
     again = partial(_loocv, scores, times=times, feasible=feasible, selectors=selectors,
                     k=k, features=features, seed=seed, params=params,
                     failure_rule=failure_rule, time_grid=time_grid,
@@ -193,7 +195,7 @@ def _loocv(scores, *, times, feasible, selectors, k, features, seed, params, fai
     return setup.evaluate(prior.folds, outcomes, rows, seed, time_grid, measure_overhead,
                           fast=fast, train=np.arange(n), tuning=tuning,
                           until_feasible=until_feasible, workers=workers, only=only,
-                          again=again, part=part)
+                          again=again, part=part, share=share)
 
 
 def holdout(
@@ -237,8 +239,9 @@ def holdout(
 def _holdout(scores, train, test, *, times, feasible, selectors, k, features, seed, params,
              failure_rule, time_grid, measure_overhead, forbidden, fast: bool = True,
              instance_features=None, checks=None, until_feasible: bool = False, workers=1,
-             only=None, part=None):
-    """:func:`holdout`; ``fast=False``, ``only`` and ``part`` as in :func:`_loocv`."""
+             only=None, part=None, share=None):
+    """:func:`holdout`; ``fast=False``, ``only``, ``part`` and ``share`` as in
+    :func:`_loocv`."""
     again = partial(_holdout, scores, train, test, times=times, feasible=feasible,
                     selectors=selectors, k=k, features=features, seed=seed, params=params,
                     failure_rule=failure_rule, time_grid=time_grid,
@@ -270,7 +273,7 @@ def _holdout(scores, train, test, *, times, feasible, selectors, k, features, se
     return setup.evaluate(lambda rows: prior.batch(rows.size), outcomes, test, seed,
                           time_grid, measure_overhead, fast=fast, train=train, tuning=tuning,
                           until_feasible=until_feasible, workers=workers, only=only,
-                          again=again, part=part)
+                          again=again, part=part, share=share)
 
 
 def _row_indices(rows, n: int, name: str) -> np.ndarray:
@@ -369,7 +372,7 @@ class _Setup:
     def evaluate(self, fold_priors, fold_outcomes, test, seed, time_grid,
                  measure, fast: bool = True, train=None, tuning=None,
                  until_feasible: bool = False, workers: int = 1, only=None,
-                 again=None, part=None) -> LoocvResult:
+                 again=None, part=None, share=None) -> LoocvResult:
         """Run every selector on the ``test`` rows; ``fold_priors(rows)`` and
         ``fold_outcomes(rows)`` give their priors and training outcomes, ``train`` the
         rows the folds train on (their instance features), ``tuning(test)`` the groups
@@ -378,8 +381,11 @@ class _Setup:
         result, up to the measured overhead; what the tests compare the fast path with).
         ``only``: return just (traces, settings, tuning seconds) of these selectors, the
         tuned ones over the tuning groups ``part`` (indices into ``tuning(test)``; None:
-        all); ``workers`` >= 2: most of the tuned selectors' groups come from
-        ``again(only=..., part=...)`` in a second process (:func:`_shares`)."""
+        all); ``share``: just the traces of ``only`` (selectors that tune nothing) over
+        these positions of ``test``.  ``workers`` >= 2: most of the tuned selectors'
+        groups come from ``again(only=..., part=...)`` in a second process
+        (:func:`_shares`); where no selector tunes, the second half of the rows comes from
+        ``again(only=..., share=...)`` (:func:`_halves`)."""
         D, T, feas, k = self.D[test], self.T[test], self.feas[test], self.k
         hidden = None if self.forbidden is None else self.forbidden[test]
         folds = _Folds(fold_priors, fold_outcomes, self.Dn[test], T, feas, hidden, self.theta,
@@ -390,18 +396,20 @@ class _Setup:
                        until_feasible=until_feasible)
         names = self.names if only is None else tuple(only)
         tuned = [n for n in names if issubclass(self.classes[n], Contextual)]
-        if part is not None:  # a second process's share
-            mine, theirs_groups = tuple(part), ()
+        if share is not None:  # a second process's rows
+            return self._traces(names, folds.restrict(share), tuning, test, measure, fast)
+        halves = _halves(test.size, tuned, workers if again is not None else 1)
+        if halves is not None and only is None:
+            mine, theirs_rows = halves
+            with _second_process(partial(again, only=names, share=theirs_rows)) as theirs:
+                traces, settings, tuning_seconds = self._traces(
+                    names, folds.restrict(mine), tuning, test, measure, fast)
+                traces = {name: _merged(test.size, (mine, traces[name]),
+                                        (theirs_rows, found))
+                          for name, found in theirs.result()[0].items()}
         else:
-            mine, theirs_groups = _shares(names, tuned, len(tuning(test)) if tuned else 0,
-                                          workers if again is not None else 1)
-        call = None if not theirs_groups else partial(again, only=tuned, part=theirs_groups)
-        with _second_process(call) as theirs:
-            traces, settings, tuning_seconds = self._traces(
-                names, folds, tuning, test, measure, fast, groups=mine)
-            if theirs is not None:
-                _take_rows(traces, settings, tuning_seconds, theirs.result(),
-                           np.concatenate([tuning(test)[g][0] for g in theirs_groups]))
+            traces, settings, tuning_seconds = self._tuned_share(
+                names, tuned, folds, tuning, test, measure, fast, workers, again, part)
         if only is not None:
             return traces, settings, tuning_seconds
         traces = {n: traces[n] for n in names}  # the order selectors were given in
@@ -446,6 +454,25 @@ class _Setup:
                               D[rows, np.maximum(order, 0)], self.d)
             result.best_score[name] = _best_by_time(totals[name], scores, grid, self.d)
         return result
+
+    def _tuned_share(self, names, tuned, folds, tuning, test, measure, fast, workers,
+                     again, part):
+        """(traces, settings, tuning seconds) of ``names`` over every row, most of the
+        tuned selectors' groups from a second process where ``workers`` >= 2
+        (:func:`_shares`), or over the tuning groups ``part`` only (a second process's)."""
+        if part is not None:
+            mine, theirs_groups = tuple(part), ()
+        else:
+            mine, theirs_groups = _shares(names, tuned, len(tuning(test)) if tuned else 0,
+                                          workers if again is not None else 1)
+        call = None if not theirs_groups else partial(again, only=tuned, part=theirs_groups)
+        with _second_process(call) as theirs:
+            traces, settings, tuning_seconds = self._traces(
+                names, folds, tuning, test, measure, fast, groups=mine)
+            if theirs is not None:
+                _take_rows(traces, settings, tuning_seconds, theirs.result(),
+                           np.concatenate([tuning(test)[g][0] for g in theirs_groups]))
+        return traces, settings, tuning_seconds
 
     def _traces(self, names, folds, tuning, test, measure, fast, groups=None):
         """(traces, settings, tuning seconds) of the selectors ``names``, the tuned ones
@@ -497,16 +524,7 @@ class _Setup:
             part = folds.restrict(positions)
             parts.append((positions, _uncapped(*run(cls, kwargs, part, measure), part.T,
                                                part.feas)))
-        width = max((tr.order.shape[1] for _, tr in parts), default=0)
-        out = TryTrace(order=np.full((B, width), -1, dtype=np.intp),
-                       allowance=np.zeros((B, width)), cost=np.zeros((B, width)),
-                       outcome=np.full((B, width), -1, dtype=np.int8),
-                       overhead=np.zeros((B, width)))
-        for positions, tr in parts:
-            w = tr.order.shape[1]
-            for key in ("order", "allowance", "cost", "outcome", "overhead"):
-                getattr(out, key)[positions, :w] = getattr(tr, key)
-        return out, chosen, tuning_seconds
+        return _merged(B, *parts), chosen, tuning_seconds
 
 
 def _shares(names, tuned, groups: int, workers: int) -> tuple[tuple, tuple]:
@@ -523,6 +541,38 @@ def _shares(names, tuned, groups: int, workers: int) -> tuple[tuple, tuple]:
     if workers < 2 or not tuned or (alone and not mine):
         return every, ()
     return every[groups - mine:], every[:groups - mine]
+
+
+#: Fewest held-out rows split between two processes (:func:`_halves`): below it a second
+#: process takes longer to start (about 1 s) than the rows it would take.
+HALVES_MIN_ROWS = 64
+
+
+def _halves(rows: int, tuned, workers: int):
+    """(this process's, the second process's) positions of the held-out rows, where the
+    selectors tune nothing (those that do are shared by tuning group: :func:`_shares`),
+    ``workers`` >= 2 and there are at least :data:`HALVES_MIN_ROWS` rows; else None.  A
+    row's trace is the same whichever rows it is computed with (its own fold, its own
+    seed), so the split changes no result."""
+    if workers < 2 or tuned or rows < HALVES_MIN_ROWS:
+        return None
+    positions = np.arange(rows)
+    return positions[:rows // 2], positions[rows // 2:]
+
+
+def _merged(size: int, *parts) -> TryTrace:
+    """One trace of ``size`` rows from (positions, trace of those rows) ``parts``, padded
+    (-1 / 0 / -1) to the widest, and where no part has the row."""
+    width = max((tr.order.shape[1] for _, tr in parts), default=0)
+    out = _padded(TryTrace(order=np.zeros((size, 0), dtype=np.intp),
+                           allowance=np.zeros((size, 0)), cost=np.zeros((size, 0)),
+                           outcome=np.zeros((size, 0), dtype=np.int8),
+                           overhead=np.zeros((size, 0))), width)
+    for positions, tr in parts:
+        w = tr.order.shape[1]
+        for key in ("order", "allowance", "cost", "outcome", "overhead"):
+            getattr(out, key)[positions, :w] = getattr(tr, key)
+    return out
 
 
 def _take_rows(traces, settings, tuning_seconds, found, rows) -> None:

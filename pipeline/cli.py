@@ -154,6 +154,7 @@ def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, 
                      c=1.96, failure_rule="magnitude", overhead=True, as_json=False,
                      forbidden=None) -> None:
     """Run the LOOCV on loaded ``data`` and print its summary (table or JSON)."""
+    from pipeline.evaluation import loocv_workers
     from pipeline.validation import available_memory, evaluation_bytes, memory_text
 
     params = {"box": {"c": c}} if "box" in names else {}
@@ -169,6 +170,7 @@ def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, 
             selectors=names, k=k, seed=seed, params=params, failure_rule=failure_rule,
             measure_overhead=overhead, forbidden=forbidden,
             instance_features=data.instance_features, checks=data.checks,
+            workers=loocv_workers(int(np.prod(shape))),
         )
     except ValueError as exc:
         _fail(f"{file}: {exc}")

@@ -72,15 +72,21 @@ def selector_params(names, settings) -> dict:
     return {"box": {"c": settings["c"]}} if "box" in names else {}
 
 
-#: From this many entries on, the tuned selectors run in a second process beside the others
-#: (box_core.loocv's ``workers``): below it they take about as long as starting one (~1 s);
-#: at the main job's 162,000 about 15 s.
+#: From this many entries on, a second process shares the evaluation (box_core.loocv's
+#: ``workers``: the tuned selectors, or where there are none half the rows): below it they
+#: take about as long as starting one (~1 s); at the main job's 162,000 about 15 s.
 BESIDE_ENTRIES = 50_000
 
 
-def evaluate(ctx: StageContext) -> None:
-    from pipeline.cluster import available_cores  # dask: only where a stage runs
+def loocv_workers(entries: int) -> int:
+    """box_core.loocv's ``workers`` for a matrix of ``entries``: the cores this process
+    may use from :data:`BESIDE_ENTRIES` on, else 1."""
+    from pipeline.cluster import available_cores  # dask: only where it is used
 
+    return available_cores() if entries >= BESIDE_ENTRIES else 1
+
+
+def evaluate(ctx: StageContext) -> None:
     store = ctx.store
     settings = ctx.config["evaluate"]
     info = store.stage_info("evaluate")
@@ -102,8 +108,7 @@ def evaluate(ctx: StageContext) -> None:
                                 failure_rule=settings["failure_rule"], forbidden=hide,
                                 instance_features=instance_features(store),
                                 checks=store.result(SCORES, CHECKS),
-                                workers=available_cores() if scores.size >= BESIDE_ENTRIES
-                                else 1)
+                                workers=loocv_workers(scores.size))
     except ValueError as exc:
         raise ValueError(f"evaluate: {exc}") from None
     others, curves = {}, {}
