@@ -111,7 +111,7 @@ def evaluate(
     forbidden = None
     if file.is_dir():
         with _reading(file):
-            data, forbidden = _store_matrix(file)
+            data, forbidden = store_matrix(file)
     else:
         try:
             if file.suffix in (".nc", ".parquet") and file.is_file():
@@ -133,7 +133,7 @@ def evaluate(
                      forbidden=data.forbidden if forbidden is None else forbidden)
 
 
-def _store_matrix(path: Path) -> tuple[MatrixFile, np.ndarray | None]:
+def store_matrix(path: Path) -> tuple[MatrixFile, np.ndarray | None]:
     """The store's matrix, and the columns each row must not try: those extracted from its
     own raw solution (hidden as ``stage=evaluate`` hides them by default)."""
     from pipeline.evaluation import own_constraints

@@ -1,0 +1,143 @@
+"""Leave-one-out on a real store's score matrix, as ``box evaluate STORE`` runs it: this
+checkout with two processes and with one, against the code of another revision.
+
+    python benchmarks/bench_loocv_store.py STORE [--selectors box,static,rand,doo]
+                                          [--repeats 1] [--baseline-rev 8115288]
+
+The matrix is read once the way ``box evaluate`` reads a store (scores, feasibility,
+times, Θ̂, instance features, checks, and each row's own constraints hidden), saved, and
+each measurement runs in a fresh interpreter: ``box_core.loocv`` with k = all allowed
+columns and the selectors' overhead measured, as ``box evaluate`` does.  Variants:
+
+  two      this checkout, ``workers=2`` (what ``box evaluate`` and stage evaluate pass on
+           a matrix this size where 2 cores are free: the second process takes half the
+           rows, or the tuned selectors);
+  one      this checkout, ``workers=1``;
+  base     box_core at ``--baseline-rev`` (``''``: none), ``workers=1``; its default is
+           the code before BOX's posterior dropped its tried columns and before the rows
+           were split (the workers of that code only move tuned selectors).
+
+Printed: median wall seconds (over ``--repeats``), the peak memory of the measuring
+process and of its second process, the ratio to ``base``, and whether every variant's
+orders, first feasible steps and planning times are those of ``base`` (or of ``one``
+without a baseline), bit for bit.  Issue 27's target: <= 60 s and <= 4 GiB on 2 cores for
+the default selectors at 1500 x 1000.  Asserts nothing (machines are noisy).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+from bench_loocv_paper import baseline_package  # noqa: E402
+
+#: what box evaluate runs on a store with constraint features
+SELECTORS = "box,static,rand,doo"
+#: the arrays of a matrix file, as pipeline.cli.store_matrix gives them
+FIELDS = ("scores", "times", "feasible", "features", "instance_features", "checks")
+
+
+def child(job: dict) -> dict:
+    """One measurement in this fresh interpreter."""
+    if job["path"]:
+        sys.path.insert(0, job["path"])
+    module = __import__(job["package"])
+    data = np.load(job["data"])
+    given = {f: data[f] for f in FIELDS[1:] if f in data.files}
+    forbidden = data["forbidden"] if "forbidden" in data.files else None
+    start = time.perf_counter()
+    result = module.loocv(data["scores"], selectors=tuple(job["selectors"]),
+                          forbidden=forbidden, workers=job["workers"], seed=0,
+                          measure_overhead=True, **given)
+    wall = time.perf_counter() - start
+    digest = hashlib.sha256()
+    for name in result.selectors:
+        for values in (result.order[name], result.first_feasible_step[name],
+                       result.first_feasible_planning_time[name]):
+            digest.update(np.ascontiguousarray(values).tobytes())
+    return {"wall": wall, "digest": digest.hexdigest(),
+            "rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            "rss_second": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}
+
+
+def run_child(job: dict) -> dict:
+    out = subprocess.run([sys.executable, __file__, "--child", json.dumps(job)],
+                         capture_output=True, text=True)
+    if out.returncode:
+        raise RuntimeError(out.stderr[-3000:])
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def saved_matrix(store: str, into: Path) -> tuple[Path, tuple[int, int]]:
+    """The store's matrix as ``box evaluate`` reads it, in an .npz file."""
+    from pipeline.cli import store_matrix
+
+    data, forbidden = store_matrix(Path(store))
+    arrays = {f: getattr(data, f) for f in FIELDS if getattr(data, f) is not None}
+    if forbidden is not None:
+        arrays["forbidden"] = forbidden
+    path = into / "matrix.npz"
+    np.savez(path, **arrays)
+    return path, np.shape(data.scores)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("store", nargs="?")
+    parser.add_argument("--selectors", default=SELECTORS)
+    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--baseline-rev", default="8115288")
+    parser.add_argument("--child", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        print(json.dumps(child(json.loads(args.child))))
+        return
+    if not args.store:
+        parser.error("a store is needed (a folder made by python -m pipeline)")
+    selectors = [s.strip() for s in args.selectors.split(",") if s.strip()]
+    with tempfile.TemporaryDirectory() as tmp:
+        data, (n, m) = saved_matrix(args.store, Path(tmp))
+        common = dict(data=str(data), selectors=selectors)
+        variants = {"two": dict(common, package="box_core", path="", workers=2),
+                    "one": dict(common, package="box_core", path="", workers=1)}
+        base = baseline_package(args.baseline_rev, Path(tmp)) if args.baseline_rev else None
+        if base is not None:
+            variants["base"] = dict(common, package="box_core_baseline", path=base,
+                                    workers=1)
+        runs = {v: [] for v in variants}
+        names = list(variants)
+        for r in range(args.repeats):  # the variants' order rotates: drift hits all alike
+            for v in names[r % len(names):] + names[:r % len(names)]:
+                runs[v].append(run_child(variants[v]))
+    print(f"{args.store}: leave-one-out {n} x {m}, {', '.join(selectors)}, k = all allowed "
+          f"columns, overhead measured; median of {args.repeats}")
+    reference = "base" if "base" in runs else "one"
+    ref_wall = statistics.median(r["wall"] for r in runs[reference])
+    label = {"two": "this checkout, workers=2", "one": "this checkout, workers=1",
+             "base": f"baseline {args.baseline_rev}, workers=1"}
+    print(f"  {'variant':<36}{'wall s':>9}{'peak MiB':>10}{'2nd MiB':>9}{'/ ' + reference:>9}"
+          "  identical")
+    for v, rs in runs.items():
+        wall = statistics.median(r["wall"] for r in rs)
+        same = all(r["digest"] == runs[reference][0]["digest"] for r in rs)
+        print(f"  {label[v]:<36}{wall:>9.1f}{max(r['rss'] for r in rs):>10.0f}"
+              f"{max(r['rss_second'] for r in rs):>9.0f}{ref_wall / wall:>8.2f}x"
+              f"  {'yes' if same else 'NO'}")
+    print("  target: <= 60 s on 2 cores: "
+          + ("met" if statistics.median(r["wall"] for r in runs["two"]) <= 60 else "not met"))
+
+
+if __name__ == "__main__":
+    main()
