@@ -17,7 +17,8 @@ columns and the selectors' overhead measured, as ``box evaluate`` does.  Variant
            the code before BOX's posterior dropped its tried columns and before the rows
            were split (the workers of that code only move tuned selectors).
 
-Printed: median wall seconds (over ``--repeats``), the peak memory of the measuring
+Every child has one thread per numeric library (``child_runs.ONE_THREAD``).  Printed:
+median wall seconds (over ``--repeats``), the peak memory of the measuring
 process and of its second process, the ratio to ``base``, and whether every variant's
 orders, first feasible steps and planning times are those of ``base`` (or of ``one``
 without a baseline), bit for bit.  Issue 27's target: <= 60 s and <= 4 GiB on 2 cores for
@@ -31,17 +32,14 @@ import hashlib
 import json
 import resource
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+import numpy as np
+from child_runs import export_revision, run_child
 
-import numpy as np  # noqa: E402
-from bench_loocv_paper import baseline_package  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 #: what box evaluate runs on a store with constraint features
 SELECTORS = "box,static,rand,doo"
@@ -50,10 +48,9 @@ FIELDS = ("scores", "times", "feasible", "features", "instance_features", "check
 
 
 def child(job: dict) -> dict:
-    """One measurement in this fresh interpreter."""
-    if job["path"]:
-        sys.path.insert(0, job["path"])
-    module = __import__(job["package"])
+    """One measurement in this fresh interpreter (box_core from the variant's root)."""
+    import box_core as module
+
     data = np.load(job["data"])
     given = {f: data[f] for f in FIELDS[1:] if f in data.files}
     forbidden = data["forbidden"] if "forbidden" in data.files else None
@@ -70,14 +67,6 @@ def child(job: dict) -> dict:
     return {"wall": wall, "digest": digest.hexdigest(),
             "rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
             "rss_second": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}
-
-
-def run_child(job: dict) -> dict:
-    out = subprocess.run([sys.executable, __file__, "--child", json.dumps(job)],
-                         capture_output=True, text=True)
-    if out.returncode:
-        raise RuntimeError(out.stderr[-3000:])
-    return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def saved_matrix(store: str, into: Path) -> tuple[Path, tuple[int, int]]:
@@ -110,17 +99,18 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         data, (n, m) = saved_matrix(args.store, Path(tmp))
         common = dict(data=str(data), selectors=selectors)
-        variants = {"two": dict(common, package="box_core", path="", workers=2),
-                    "one": dict(common, package="box_core", path="", workers=1)}
-        base = baseline_package(args.baseline_rev, Path(tmp)) if args.baseline_rev else None
+        variants = {"two": (ROOT, dict(common, workers=2)),
+                    "one": (ROOT, dict(common, workers=1))}
+        base = (export_revision(args.baseline_rev, Path(tmp) / "base", ("box_core",))
+                if args.baseline_rev else None)
         if base is not None:
-            variants["base"] = dict(common, package="box_core_baseline", path=base,
-                                    workers=1)
+            variants["base"] = (base, dict(common, workers=1))
         runs = {v: [] for v in variants}
         names = list(variants)
         for r in range(args.repeats):  # the variants' order rotates: drift hits all alike
             for v in names[r % len(names):] + names[:r % len(names)]:
-                runs[v].append(run_child(variants[v]))
+                root, job = variants[v]
+                runs[v].append(run_child(__file__, job, root, v))
     print(f"{args.store}: leave-one-out {n} x {m}, {', '.join(selectors)}, k = all allowed "
           f"columns, overhead measured; median of {args.repeats}")
     reference = "base" if "base" in runs else "one"

@@ -52,8 +52,8 @@ class Run:
         #: the dotted keys the command line set (``pipeline.__main__.explicit_keys``)
         self.explicit = frozenset(explicit)
         self._configure(cfg)
-        planner = configs.planner_settings(self.plain["planner"])
-        path = cfg.store.path or default_path(self.domain.name, planner_label(planner), cfg.seed)
+        path = cfg.store.path or default_path(self.domain.name, planner_label(self.planner),
+                                               cfg.seed)
         self.location = locate(path, self.plain["store"].get("storage_options"))
         self.path = self.location.path
         #: names this run's tasks: two runs on one scheduler never share a future
@@ -77,9 +77,9 @@ class Run:
         self.cfg = cfg
         self.plain = OmegaConf.to_container(cfg, resolve=True, enum_to_str=True)
         validation.check_values(self.plain)  # also when stages run without the entry point
+        self.planner = configs.planner_settings(self.plain["planner"])
         self.domain_spec = domain_spec_of(self.plain)
-        self.domain = load_domain(self.domain_spec["name"],
-                                  planner=configs.planner_settings(self.plain["planner"]),
+        self.domain = load_domain(self.domain_spec["name"], planner=self.planner,
                                   **self.domain_spec["config"])
         self.identity = configs.identity(cfg)
         self.identity_hash = configs.config_hash(self.identity)
