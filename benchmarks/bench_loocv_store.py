@@ -32,6 +32,7 @@ import hashlib
 import json
 import resource
 import statistics
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -82,7 +83,7 @@ def saved_matrix(store: str, into: Path) -> tuple[Path, tuple[int, int]]:
     return path, np.shape(data.scores)
 
 
-def main() -> None:
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("store", nargs="?")
     parser.add_argument("--selectors", default=SELECTORS)
@@ -92,12 +93,18 @@ def main() -> None:
     args = parser.parse_args()
     if args.child:
         print(json.dumps(child(json.loads(args.child))))
-        return
+        return 0
     if not args.store:
         parser.error("a store is needed (a folder made by python -m pipeline)")
+    from pipeline.store import StoreError
+
     selectors = [s.strip() for s in args.selectors.split(",") if s.strip()]
     with tempfile.TemporaryDirectory() as tmp:
-        data, (n, m) = saved_matrix(args.store, Path(tmp))
+        try:
+            data, (n, m) = saved_matrix(args.store, Path(tmp))
+        except (StoreError, FileNotFoundError) as e:
+            print(f"bench_loocv_store: {e}", file=sys.stderr)
+            return 2
         common = dict(data=str(data), selectors=selectors)
         variants = {"two": (ROOT, dict(common, workers=2)),
                     "one": (ROOT, dict(common, workers=1))}
@@ -125,9 +132,11 @@ def main() -> None:
         print(f"  {label[v]:<36}{wall:>9.1f}{max(r['rss'] for r in rs):>10.0f}"
               f"{max(r['rss_second'] for r in rs):>9.0f}{ref_wall / wall:>8.2f}x"
               f"  {'yes' if same else 'NO'}")
-    print("  target: <= 60 s on 2 cores: "
-          + ("met" if statistics.median(r["wall"] for r in runs["two"]) <= 60 else "not met"))
+    if n * m >= 1500 * 1000:  # issue 27's target is for the paper's largest matrices
+        print("  target: <= 60 s on 2 cores at 1500 x 1000: " + (
+            "met" if statistics.median(r["wall"] for r in runs["two"]) <= 60 else "not met"))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
