@@ -272,6 +272,12 @@ class Contextual(Box):
             self._model = NeighbourModel(ctx.outcomes, X, query, int(k), mismatch,
                                          prior_rows, self.cap, ranks)
 
+    @classmethod
+    def drops_tried(cls) -> bool:
+        # BOX's values are read only where no try has ended, and a try's score is observed
+        # when it ends (a paused try is observed when it is resumed): never twice
+        return True
+
     # the live and uncapped interface (propose / update)
 
     def propose(self) -> np.ndarray:

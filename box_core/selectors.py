@@ -250,21 +250,24 @@ class Box(Policy):
         if not (math.isfinite(c) and c >= 0):
             raise ValueError(f"c must be a finite number >= 0, got {c!r}")
         self.c = float(c)
-        # BOX's own propose reads no tried column's posterior (one that overrides it may)
-        drop = type(self).propose is Box.propose and (
-            True if ctx.forbidden is None else ctx.forbidden)
-        self.posterior = GaussianPosterior(ctx.prior, capacity=ctx.horizon or 16,
-                                           skip_inert=ctx.skip_inert, drop_observed=drop)
+        self.posterior = _posterior(ctx, self.drops_tried())
         # untried columns whose posterior an observation can still move, per instance
         self._open = (~(self.tried | self.posterior.inert)).sum(axis=1)
 
     @classmethod
+    def drops_tried(cls) -> bool:
+        """Whether nothing reads a tried column's posterior, so that the posterior may
+        forget those columns (GaussianPosterior's ``drop_observed``): true of BOX's own
+        :meth:`propose`, not assumed of one that overrides it."""
+        return cls.propose is Box.propose
+
+    @classmethod
     def fold_batch(cls, n: int, m: int, k: int) -> int:
         # Keep the part of each batch's W that a step reads near 8 MiB: it stays in cache
-        # while stepping, and bounds memory whatever n is.  BOX's own W drops the columns
-        # it has tried (GaussianPosterior's drop_observed): at step t it reads about
-        # t (m - t) doubles per instance (plus what a repack leaves), otherwise t m.
-        if cls.propose is Box.propose:
+        # while stepping, and bounds memory whatever n is.  A W that drops the columns
+        # tried (drops_tried) is read at about t (m - t) doubles per instance at step t
+        # (plus what a repack leaves), otherwise t m.
+        if cls.drops_tried():
             t = min(k, m // 2)
             return int(max(1, min(n, (10 << 20) // (9 * t * (m - t) + 8 * m))))
         return int(max(1, min(n, (8 << 20) // (8 * k * m))))
@@ -324,6 +327,14 @@ class Box(Policy):
         super().keep(folds)
         self.posterior.keep(folds)
         self._open = self._open[folds]
+
+
+def _posterior(ctx: FoldContext, drop_tried: bool) -> GaussianPosterior:
+    """The Gaussian posterior of a batch; ``drop_tried``: one that may forget the columns
+    tried (the forbidden ones from the start)."""
+    drop = drop_tried and (True if ctx.forbidden is None else ctx.forbidden)
+    return GaussianPosterior(ctx.prior, capacity=ctx.horizon or 16,
+                             skip_inert=ctx.skip_inert, drop_observed=drop)
 
 
 @register("pembo")
@@ -509,7 +520,12 @@ class Eips(Policy):
     the entries of the authors' grasp matrix), which a Gaussian on scores models poorly,
     while these frequencies are the exact predictive distribution of the empirical instance
     distribution.  Only rows whose weight changes touch the sums, so a try costs
-    O(m + changed rows * m), the whole trace O((k + n) m) at most.
+    O(m + changed rows * m); a row whose weight has become negligible
+    (:data:`NEGLIGIBLE_WEIGHT`, some 23 mismatches at the default) is no longer updated, so
+    each row is touched a bounded number of times and, once none is left to update, p and
+    the typical times are computed once.  The feasibility model then is fixed, and what a
+    try costs is the Gaussian posterior's update (the posterior forgets the tried columns,
+    whose gains are never read).
 
     Cost model: tau_j = p_j s_j + (1 - p_j) f_j, where s_j and f_j are the typical times of
     column j's feasible and infeasible entries *on instances like this one*: geometric
@@ -560,8 +576,9 @@ class Eips(Policy):
         mine = out.held_out[own]
         self._w = np.ones((ctx.size, n))
         self._w[np.flatnonzero(own), mine] = 0.0
-        self._live = self._w > 0  # rows whose weight can still change
-        self._own = np.where(own, out.held_out, -1)  # each instance's own row, or -1
+        # rows whose weight is still updated: not the own row, and not yet negligible
+        self._live = self._w > 0
+        self._cutoff = NEGLIGIBLE_WEIGHT * min(self.a, self.b) / float(max(n, 1)) ** 2
 
         def fold_sums(values):  # column sums over each fold's training rows, (B, m)
             sums = np.repeat(values.sum(axis=0)[None, :], ctx.size, axis=0)
@@ -580,8 +597,7 @@ class Eips(Policy):
             self._g = (np.where(ok_n > 0, self._lsums[0] / ok_n, mean_l),
                        np.where(fail_n > 0, self._lsums[1] / fail_n, mean_l))
         self._best = np.full(ctx.size, -np.inf)
-        self.posterior = GaussianPosterior(ctx.prior, capacity=ctx.horizon or 16,
-                                           skip_inert=ctx.skip_inert)
+        self.posterior = _posterior(ctx, self.drops_tried())
         # Idle columns: constant, and infeasible on every training row.  In leave-one-out
         # (every instance's own row among the outcomes) the held-out row fails there too,
         # so a try changes no weight, sum, best score or posterior, and the column's gain
@@ -603,13 +619,22 @@ class Eips(Policy):
         # F, L_ok and L_fail side by side: one sparse product updates the three sums
         # (column by column the same numbers as three products)
         self._FL = np.ascontiguousarray(np.concatenate([F, *L], axis=1))
+        self._changing = int(self._live.sum())  # rows whose weight is still updated
+        self._frozen = None  # (p, tau) once no weight changes any more
 
     fold_batch = Box.fold_batch
     bytes_per_instance = Box.bytes_per_instance
 
+    @classmethod
+    def drops_tried(cls) -> bool:
+        return True  # values() reads the posterior everywhere, but propose masks tried
+
     def expected(self) -> tuple[np.ndarray, np.ndarray]:
         """(p, tau), each (B, m): probability of feasibility and expected time per column
         (of the kept columns only, where some are idle or tried by every instance)."""
+        if self._frozen is not None:
+            p, tau = self._frozen
+            return p.copy(), tau
         p = (self._sums + self.a * self._pbar) / (self._mass + self.a)[:, None]
         p = np.clip(p, 0.0, 1.0)
         b = self.b
@@ -618,6 +643,8 @@ class Eips(Policy):
         t_ok = np.exp((self._lsums[0] + b * self._g[0]) / (ok_w + b))
         t_fail = np.exp((self._lsums[1] + b * self._g[1]) / (fail_w + b))
         tau = np.maximum(p * t_ok + (1.0 - p) * t_fail, 1e-12)
+        if not self._changing:
+            self._frozen = (p.copy(), tau)
         return p, tau
 
     def propose(self) -> np.ndarray:
@@ -655,32 +682,34 @@ class Eips(Policy):
         self._best = np.where(ok, np.maximum(self._best, scores), self._best)
         busy = np.flatnonzero(ok | ~self._idle[cols])  # an idle try changes no weight
         differs = self._FT[cols[busy]] != ok[busy, None]
-        if self.rho == 0.0:
-            differs &= self._live[busy]
-        else:  # weights never reach 0: only the own row's (0 from the start) stays put
-            own = self._own[busy]
-            mine = np.flatnonzero(own >= 0)
-            differs[mine, own[mine]] = False
+        differs &= self._live[busy]
         b, r = np.divmod(np.flatnonzero(differs), differs.shape[1])
         b = busy[b]
         if b.size:
             change = self._w[b, r] * (self.rho - 1.0)
             self._w[b, r] += change
-            if self.rho == 0.0:
-                self._live[b, r] = False
-            from scipy import sparse  # here: see box_core.stats on import times
+            stays = self._w[b, r] >= self._cutoff  # (mismatch 0: none)
+            self._live[b, r] = stays
+            self._changing -= b.size - int(stays.sum())
+            if 3 * b.size >= self._w.size:  # a third of all weights: one BLAS product
+                delta = np.zeros(self._w.shape)
+                delta[b, r] = change
+            else:
+                from scipy import sparse  # here: see box_core.stats on import times
 
-            # the weight changes as a CSR matrix built directly (b is sorted, r ascending
-            # within each b: the canonical layout), not through COO's conversion
-            indptr = np.zeros(self.ctx.size + 1, dtype=np.intp)
-            np.cumsum(np.bincount(b, minlength=self.ctx.size), out=indptr[1:])
-            delta = sparse.csr_matrix((change, r, indptr), shape=self._w.shape)
+                # the weight changes as a CSR matrix built directly (b is sorted, r
+                # ascending within each b: the canonical layout), not through COO's
+                indptr = np.zeros(self.ctx.size + 1, dtype=np.intp)
+                np.cumsum(np.bincount(b, minlength=self.ctx.size), out=indptr[1:])
+                delta = sparse.csr_matrix((change, r, indptr), shape=self._w.shape)
             added = delta @ self._FL
             width = self._sums.shape[1]
             self._sums += added[:, :width]
             self._lsums[0] += added[:, width:2 * width]
             self._lsums[1] += added[:, 2 * width:]
             self._mass += np.bincount(b, weights=change, minlength=self.ctx.size)
+            if not self._changing:
+                self._FL = None  # the sums are final: nothing reads the rows again
         self._open -= ~self._idle[cols]
         if self.ctx.skip_inert:
             self._narrow()
@@ -699,8 +728,10 @@ class Eips(Policy):
             return
         at = np.flatnonzero(~done)
         self._cols = kept[at]
-        self._FL = np.ascontiguousarray(self._FL[:, np.concatenate(
-            [at, width + at, 2 * width + at])])
+        if self._FL is not None:
+            self._FL = np.ascontiguousarray(self._FL[:, np.concatenate(
+                [at, width + at, 2 * width + at])])
+        self._frozen = None
         self._sums, self._pbar = self._sums[:, at], self._pbar[:, at]
         self._lsums = [sums[:, at] for sums in self._lsums]
         self._g = tuple(g[:, at] for g in self._g)
@@ -715,7 +746,8 @@ class Eips(Policy):
     def keep(self, folds: np.ndarray) -> None:
         super().keep(folds)
         self.posterior.keep(folds)
-        self._w, self._live, self._own = self._w[folds], self._live[folds], self._own[folds]
+        self._w, self._live = self._w[folds], self._live[folds]
+        self._changing, self._frozen = int(self._live.sum()), None
         self._sums, self._mass, self._pbar = self._sums[folds], self._mass[folds], \
             self._pbar[folds]
         self._lsums = [sums[folds] for sums in self._lsums]
@@ -724,6 +756,17 @@ class Eips(Policy):
 
 
 _SQRT_2PI = math.sqrt(2.0 * math.pi)
+
+#: EIPS stops updating a training row's weight once it is below NEGLIGIBLE_WEIGHT *
+#: min(prior_rows, time_rows) / n^2 (n training rows): all such rows together weigh under
+#: NEGLIGIBLE_WEIGHT * min(a, b) / n, so leaving their weights as they are (rather than
+#: shrinking them further) moves each p_j (whose numerator is at least prior_rows / n
+#: wherever a training row is feasible at j, and exactly 0 elsewhere) and each typical
+#: time by under about NEGLIGIBLE_WEIGHT of itself: below the rounding that the running
+#: sums carry anyway.  With the default mismatch 0.1 a row is frozen after some 23
+#: mismatches, which most rows reach within the first hundred tries of a 1500-row matrix,
+#: and the sums stop costing anything.
+NEGLIGIBLE_WEIGHT = 1e-16
 
 #: EIPS's cost model takes times below this (seconds) as this: logarithms need a floor
 TIME_FLOOR = 1e-6

@@ -201,6 +201,22 @@ def test_eips_order_equals_its_direct_implementation(n, m, seed, mismatch, prior
     assert run(sel, truth, m) == expected
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_eips_stops_updating_negligible_rows_and_keeps_the_direct_order(seed):
+    # 150 tries on 59 training rows: most rows mismatch the instance more than 20 times,
+    # so their weights fall below the cutoff and stay there (once all do, the rows' matrix
+    # is let go); the direct implementation keeps multiplying them all the way down
+    D, F, T = feasibility_matrix(60, 150, seed)
+    train, truth = D[:-1], D[-1]
+    sel = make_selector("eips", train, times=T[:-1], feasible=F[:-1])
+    expected = reference.eips_order(train, F[:-1], T[:-1], truth, 150)
+    assert run(sel, truth, 150) == expected
+    policy = sel._policy
+    frozen = (policy._w[0] > 0) & ~policy._live[0]
+    assert frozen.sum() >= 45 and (policy._w[0][frozen] < 1e-18).all()
+    assert (policy._FL is None) == (policy._changing == 0)
+
+
 def test_eips_tries_the_cheaper_of_two_equally_likely_constraints_first():
     # both columns always feasible with the same scores; column 0 takes 10 s, column 1 1 s
     D = np.column_stack([np.linspace(-2, -1, 20)] * 2)
