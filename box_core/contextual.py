@@ -130,20 +130,11 @@ class NeighbourModel:
         self._nb = ranks[:, :k]  # (B, k) rows, nearest first
         self._w = np.ones((B, k))
         self.rho, self.a = float(mismatch), float(prior_rows)
-        C = outcomes.checks
-        if C is None or math.isinf(cap):
-            within = np.ones((n, m), dtype=bool)
-            share = np.ones((n, m))
-        else:
-            within = C <= cap
-            with np.errstate(divide="ignore", invalid="ignore"):
-                share = np.where(within, 1.0, cap / C)
-        # class of each training entry: 0 fails within the cap, 1 plans within it,
-        # 2 plans after it, 3 fails after it
-        self._cls = np.where(within, F.astype(np.int8), np.where(F, 2, 3).astype(np.int8))
-        blocks = [self._cls == c for c in range(4)] + [T * share, T * (1.0 - share)]
-        self._A = np.concatenate([b.astype(np.float64) for b in blocks], axis=1)
-        total = self._A.sum(axis=0)
+        cap = math.inf if outcomes.checks is None else cap
+        if outcomes.memo.get("neighbour cap") != cap:  # one cap at a time: (n, 6m) each
+            outcomes.memo["neighbour cap"] = cap
+            outcomes.memo["neighbour tables"] = _entry_tables(F, T, outcomes.checks, cap)
+        self._cls, self._blocks, self._A, total = outcomes.memo["neighbour tables"]
         own = held >= 0
         self._mean = np.repeat((total / n)[None, :], B, axis=0)
         if own.any():
@@ -157,7 +148,8 @@ class NeighbourModel:
         self.m = m
 
     def _block(self, a, i):
-        return a[:, i * self.m:(i + 1) * self.m]
+        at = self._blocks.index(i)
+        return a[:, at * self.m:(at + 1) * self.m]
 
     def fresh(self) -> tuple[np.ndarray, np.ndarray]:
         """(p, tau) of a first (capped) try of each column, (B, m) each."""
@@ -224,6 +216,30 @@ class NeighbourModel:
         self._nb, self._w = self._nb[folds], self._w[folds]
         self._sums, self._mean, self._mass = self._sums[folds], self._mean[folds], \
             self._mass[folds]
+
+
+def _entry_tables(F, T, C, cap):
+    """(class of each training entry, the blocks kept, the (n, m * blocks) table whose
+    weighted row sums the model keeps, its column totals): the same for every batch of an
+    evaluation.  Blocks: 0-3 whether an entry is of class 0-3, 4 its seconds within the cap,
+    5 those after it.  Block 0 is never read (the mass is kept apart), and without a cap
+    neither are 2, 3 and 5 (all zero): only the others are kept, a third of the table
+    without a cap (each column's sum is the same number either way)."""
+    n, m = F.shape
+    if math.isinf(cap):
+        within = np.ones((n, m), dtype=bool)
+        share = np.ones((n, m))
+    else:
+        within = C <= cap
+        with np.errstate(divide="ignore", invalid="ignore"):
+            share = np.where(within, 1.0, cap / C)
+    # class of each training entry: 0 fails within the cap, 1 plans within it,
+    # 2 plans after it, 3 fails after it
+    cls = np.where(within, F.astype(np.int8), np.where(F, 2, 3).astype(np.int8))
+    kept = (1, 4) if math.isinf(cap) else (1, 2, 3, 4, 5)
+    blocks = {1: cls == 1, 2: cls == 2, 3: cls == 3, 4: T * share, 5: T * (1.0 - share)}
+    A = np.concatenate([blocks[b].astype(np.float64) for b in kept], axis=1)
+    return cls, kept, A, A.sum(axis=0)
 
 
 def _rate(p: np.ndarray, tau: np.ndarray) -> np.ndarray:

@@ -183,8 +183,7 @@ def _loocv(scores, *, times, feasible, selectors, k, features, seed, params, fai
     n = setup.D.shape[0]
     rows = np.arange(n) if rows is None else _row_indices(rows, n, "rows")
 
-    def outcomes(held_out):
-        return TrainingOutcomes.of(setup.Dn, setup.feas, setup.T, held_out, setup.checks)
+    outcomes = TrainingOutcomes.of(setup.Dn, setup.feas, setup.T, [], setup.checks).holding_out
 
     groups = tuning_groups(n, seed)
 
@@ -262,10 +261,11 @@ def _holdout(scores, train, test, *, times, feasible, selectors, k, features, se
         raise ValueError("train and test share rows")
     prior = Prior.fit(setup.Dn[train])
 
-    def outcomes(held_out):
-        return TrainingOutcomes.of(setup.Dn[train], setup.feas[train], setup.T[train],
-                                   np.full(held_out.size, -1),
+    training = TrainingOutcomes.of(setup.Dn[train], setup.feas[train], setup.T[train], [],
                                    None if setup.checks is None else setup.checks[train])
+
+    def outcomes(held_out):
+        return training.holding_out(np.full(held_out.size, -1))
 
     def tuning(test):
         return [(np.arange(test.size), train)]

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 import numpy as np
@@ -474,6 +474,8 @@ class TrainingOutcomes:
     leave-one-out, whose prior is the rank-one downdate), or -1.  ``threshold``: an
     observed score above it is a feasible plan (scores in the internal unit).  ``checks``
     (n, m), where known: the collision checks each training try used (capped tries).
+    ``memo``: what selectors derive from these arrays alone, kept for the next batch of
+    the same evaluation (:meth:`holding_out` shares it; the arrays are never changed).
     """
 
     feasible: np.ndarray
@@ -481,6 +483,11 @@ class TrainingOutcomes:
     held_out: np.ndarray
     threshold: float
     checks: np.ndarray | None = None
+    memo: dict = field(default_factory=dict, repr=False)
+
+    def holding_out(self, held_out) -> TrainingOutcomes:
+        """The same outcomes for a batch that holds out ``held_out``."""
+        return replace(self, held_out=np.asarray(held_out, dtype=np.intp))
 
     @classmethod
     def of(cls, scores: np.ndarray, feasible: np.ndarray, times: np.ndarray, held_out,

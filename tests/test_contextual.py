@@ -65,6 +65,33 @@ def test_uncapped_orders_equal_the_direct_implementation(seed):
     assert res.settings["contextual"]["feature_mask"].any(axis=1).mean() >= 0.5  # the model ran
 
 
+def test_the_neighbour_tables_are_built_once_per_evaluation(monkeypatch):
+    # batches of 3 held-out rows, settings fixed (no tuning): every batch reads the same
+    # training outcomes, so their (n, m * blocks) table is built once, and without a cap
+    # it keeps only the two blocks the model reads; the orders are the direct ones
+    S, F, T, C, X = problem(30, 7, 3, seed=1)
+    built = []
+
+    def counted(*args):
+        built.append(contextual._entry_tables_uncounted(*args))
+        return built[-1]
+
+    monkeypatch.setattr(contextual, "_entry_tables_uncounted", contextual._entry_tables,
+                        raising=False)
+    monkeypatch.setattr(contextual, "_entry_tables", counted)
+    monkeypatch.setattr(contextual.Contextual, "fold_batch",
+                        classmethod(lambda cls, n, m, k: min(n, 3)))
+    params = {"k": 5, "mismatch": 0.2, "select_features": 0}
+    res = box_core.loocv(S, times=T, feasible=F, selectors=("contextual",),
+                         params={"contextual": params}, instance_features=X,
+                         measure_overhead=False)
+    assert len(built) == 1 and built[0][1] == (1, 4) and built[0][2].shape == (30, 14)
+    for i in (0, 13, 29):
+        expected = reference_tries(S, F, T, None, X, i, 7, math.inf, np.ones(3), k=5,
+                                   mismatch=0.2)
+        assert res.order["contextual"][i].tolist() == [j for j, *_ in expected]
+
+
 def test_capped_tries_equal_the_direct_implementation():
     paused = sum(capped_tries_against_the_direct_implementation(seed) for seed in range(4))
     assert paused  # the examples exercise pauses and resumptions
