@@ -347,11 +347,11 @@ class GaussianPosterior:
             verdict = self._verdict[t] = False
         if verdict is None:
             m = self.inert.size
-            if self._probe.shape[0] < t + 1:
-                rows = max(t + 1, min(2 * self._probe.shape[0], m + 1,
-                                      self.PROBE_ENTRIES // m))
+            if self._probe.shape[0] < t + 1 + t // m:
+                rows = max(t + 1 + t // m, min(2 * self._probe.shape[0], m + 1,
+                                               self.PROBE_ENTRIES // m))
                 self._probe = np.random.default_rng(20170529).standard_normal((rows, m))
-            W, lw = self._probe[:t], self._probe[t, :t]
+            W, lw = _probe_pair(self._probe, t)
             full = np.matmul(lw, W)
             narrow = np.matmul(lw, np.ascontiguousarray(W[:, self._cols]))
             verdict = bool(np.array_equal(full[self._real_cols], narrow[self._real]))
@@ -427,14 +427,14 @@ class GaussianPosterior:
                 verdict = False
             else:
                 global _SLOT_PROBE
-                if _SLOT_PROBE.shape[1] != m or _SLOT_PROBE.shape[0] < t + 1:
-                    rows = max(t + 1, min(2 * _SLOT_PROBE.shape[0], m + 1,
-                                          self.PROBE_ENTRIES // m))
+                if _SLOT_PROBE.shape[1] != m or _SLOT_PROBE.shape[0] < t + 1 + t // m:
+                    rows = max(t + 1 + t // m, min(2 * _SLOT_PROBE.shape[0], m + 1,
+                                                   self.PROBE_ENTRIES // m))
                     _SLOT_PROBE = np.random.default_rng(20170529).standard_normal((rows, m))
                 tail = m & 3
                 pick = np.random.default_rng(t).permutation(m - tail)[:width - tail]
                 layout = np.concatenate([pick, np.arange(m - tail, m)])
-                W, lw = _SLOT_PROBE[:t], _SLOT_PROBE[t, :t]
+                W, lw = _probe_pair(_SLOT_PROBE, t)
                 full = np.matmul(lw, W)
                 strided = np.empty((t, self._W.strides[1] // 8))
                 strided[:, :width] = np.take(W, layout, axis=1)
@@ -497,6 +497,13 @@ class GaussianPosterior:
         step = np.empty((size, new), dtype=np.intp)
         step[:, :cap] = self._step
         self._W, self._step = W, step
+
+
+def _probe_pair(probe: np.ndarray, t: int) -> tuple[np.ndarray, np.ndarray]:
+    """(W, l): the first t rows of the random ``probe`` (r x m, r >= t + 1 + t // m) and
+    the t numbers after them (row t's first t where t <= m; a capped selector's steps,
+    paused tries included, may outnumber the columns)."""
+    return probe[:t], probe[t:].reshape(-1)[:t]
 
 
 def argmax_untried(values: np.ndarray, tried: np.ndarray, scale: np.ndarray) -> np.ndarray:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import box_core
-from box_core import contextual
+from box_core import contextual, gaussian
 from box_core.failure import failure_value, fill_failures
 from box_core.selectors import score_unit, standardise
 from box_core.tries import FAILED, FEASIBLE, PAUSED, outcome_of_try
@@ -90,6 +90,26 @@ def test_the_neighbour_tables_are_built_once_per_evaluation(monkeypatch):
         expected = reference_tries(S, F, T, None, X, i, 7, math.inf, np.ones(3), k=5,
                                    mismatch=0.2)
         assert res.order["contextual"][i].tolist() == [j for j, *_ in expected]
+
+
+def test_capped_tries_outnumbering_the_columns_keep_the_direct_order(monkeypatch):
+    # every column tried to its end, paused ones resumed: more steps than columns, past
+    # the point where the posterior's narrowed product is checked on random numbers
+    S, F, T, C, X = problem(40, 24, 3, seed=0)
+    steps = []
+    check = gaussian.GaussianPosterior._exact_slots
+    monkeypatch.setattr(gaussian.GaussianPosterior, "_exact_slots",
+                        lambda self, t: steps.append(t) or check(self, t))
+    name, params = "contextual_capped", {"k": 5, "cap_quantile": 0.5}
+    res = box_core.loocv(S, times=T, feasible=F, selectors=(name,), checks=C,
+                         params={name: params}, instance_features=X, measure_overhead=False)
+    assert max(steps) > 24
+    for i in (0, 21, 39):
+        cap = res.settings[name]["cap"][i]
+        mask = res.settings[name]["feature_mask"][i]
+        expected = reference_tries(S, F, T, C, X, i, 24, cap, mask, k=5)
+        got = res.order[name][i]
+        assert got[got >= 0].tolist() == [j for j, *_ in expected]
 
 
 def test_capped_tries_equal_the_direct_implementation():
