@@ -147,11 +147,11 @@ def loocv(
     ends there (-1 after it) and ``best_score`` counts the tries up to it; every
     ``first_feasible_*`` value is the one a full run gives, bit for bit.
 
-    ``workers=2`` (or more) runs the selectors that tune their settings (``contextual``,
-    ``contextual_capped``: nested leave-one-out, the costly part) in a second process
-    beside the others; where none is asked for, the second process takes the second half
-    of the rows (from 64 rows on).  The result is the same (each process measures its own
-    selectors' overhead).
+    ``workers=2`` (or more) starts a second process: from 64 held-out rows on it takes the
+    second half of the rows of the selectors that tune nothing and half the tuning groups
+    of those that tune their settings (``contextual``, ``contextual_capped``: nested
+    leave-one-out); on fewer rows most of the tuned selectors' groups.  The result is the
+    same (each process measures its own selectors' overhead).
     """
     return _loocv(scores, times=times, feasible=feasible, selectors=selectors, k=k,
                   features=features, seed=seed, params=params, failure_rule=failure_rule,
@@ -398,15 +398,11 @@ class _Setup:
         tuned = [n for n in names if issubclass(self.classes[n], Contextual)]
         if share is not None:  # a second process's rows
             return self._traces(names, folds.restrict(share), tuning, test, measure, fast)
-        halves = _halves(test.size, tuned, workers if again is not None else 1)
+        plain = [n for n in names if n not in tuned]
+        halves = _halves(test.size, plain, workers if again is not None else 1)
         if halves is not None and only is None:
-            mine, theirs_rows = halves
-            with _second_process(partial(again, only=names, share=theirs_rows)) as theirs:
-                traces, settings, tuning_seconds = self._traces(
-                    names, folds.restrict(mine), tuning, test, measure, fast)
-                traces = {name: _merged(test.size, (mine, traces[name]),
-                                        (theirs_rows, found))
-                          for name, found in theirs.result()[0].items()}
+            traces, settings, tuning_seconds = self._halved(
+                tuned, plain, halves, folds, tuning, test, measure, fast, again)
         else:
             traces, settings, tuning_seconds = self._tuned_share(
                 names, tuned, folds, tuning, test, measure, fast, workers, again, part)
@@ -454,6 +450,33 @@ class _Setup:
                               D[rows, np.maximum(order, 0)], self.d)
             result.best_score[name] = _best_by_time(totals[name], scores, grid, self.d)
         return result
+
+    def _halved(self, tuned, plain, halves, folds, tuning, test, measure, fast, again):
+        """(traces, settings, tuning seconds) with a second process taking the second of
+        ``halves`` of the rows of the ``plain`` selectors (those that tune nothing) and
+        half the tuning groups of the ``tuned`` ones: each process gets about half of
+        every selector's work, whatever their shares of the whole."""
+        mine, theirs_rows = halves
+        groups = tuple(range(len(tuning(test)))) if tuned else ()
+        my_groups, their_groups = groups[:len(groups) // 2], groups[len(groups) // 2:]
+        calls = [partial(again, only=plain, share=theirs_rows)]
+        if tuned:
+            calls.append(partial(again, only=tuned, part=their_groups))
+        with _second_process(partial(_each, calls)) as theirs:
+            traces, settings, seconds = self._traces(plain, folds.restrict(mine), tuning,
+                                                     test, measure, fast)
+            if tuned:
+                own = self._traces(tuned, folds, tuning, test, measure, fast,
+                                   groups=my_groups)
+            found = theirs.result()
+        traces = {name: _merged(test.size, (mine, traces[name]), (theirs_rows, tr))
+                  for name, tr in found[0][0].items()}
+        if tuned:
+            _take_rows(*own, found[1],
+                       np.concatenate([tuning(test)[g][0] for g in their_groups]))
+            for into, part in zip((traces, settings, seconds), own, strict=True):
+                into.update(part)
+        return traces, settings, seconds
 
     def _tuned_share(self, names, tuned, folds, tuning, test, measure, fast, workers,
                      again, part):
@@ -548,13 +571,13 @@ def _shares(names, tuned, groups: int, workers: int) -> tuple[tuple, tuple]:
 HALVES_MIN_ROWS = 64
 
 
-def _halves(rows: int, tuned, workers: int):
-    """(this process's, the second process's) positions of the held-out rows, where the
-    selectors tune nothing (those that do are shared by tuning group: :func:`_shares`),
-    ``workers`` >= 2 and there are at least :data:`HALVES_MIN_ROWS` rows; else None.  A
-    row's trace is the same whichever rows it is computed with (its own fold, its own
-    seed), so the split changes no result."""
-    if workers < 2 or tuned or rows < HALVES_MIN_ROWS:
+def _halves(rows: int, plain, workers: int):
+    """(this process's, the second process's) positions of the held-out rows of the
+    ``plain`` selectors (those that tune nothing; those that do are shared by tuning
+    group), where there are some, ``workers`` >= 2 and at least :data:`HALVES_MIN_ROWS`
+    rows; else None.  A row's trace is the same whichever rows it is computed with (its
+    own fold, its own seed), so the split changes no result."""
+    if workers < 2 or not plain or rows < HALVES_MIN_ROWS:
         return None
     positions = np.arange(rows)
     return positions[:rows // 2], positions[rows // 2:]
@@ -645,6 +668,11 @@ class _ChildResult:
         if not ok:
             raise value
         return value
+
+
+def _each(calls) -> list:
+    """The results of ``calls``, in order (one second process for several)."""
+    return [call() for call in calls]
 
 
 def _serve() -> None:

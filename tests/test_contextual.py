@@ -381,10 +381,12 @@ def test_a_skipped_observation_leaves_the_posterior_as_it_was(constant):
 
 @pytest.mark.parametrize("selectors", [("box", "contextual", "static", "contextual_capped"),
                                        ("contextual", "contextual_capped")])
-def test_tuned_selectors_in_a_second_process_give_the_same_result(selectors):
+@pytest.mark.parametrize("n", [60, 70])
+def test_tuned_selectors_in_a_second_process_give_the_same_result(selectors, n):
     """The second process tunes most of the 10 groups, this one the rest beside the other
-    selectors (half of them where all are tuned): the rows' results are merged."""
-    S, F, T, C, X = problem(60, 8, 2, 5)
+    selectors (half of them where all are tuned); from 64 rows on it takes half the
+    groups and the second half of the other selectors' rows: the results are merged."""
+    S, F, T, C, X = problem(n, 8, 2, 5)
     kw = dict(times=T, feasible=F, instance_features=X, checks=C, measure_overhead=False,
               selectors=selectors)
     one, two = box_core.loocv(S, **kw), box_core.loocv(S, **kw, workers=2)
@@ -397,7 +399,7 @@ def test_tuned_selectors_in_a_second_process_give_the_same_result(selectors):
         for key, values in chosen.items():
             np.testing.assert_array_equal(two.settings[name][key], values)
     assert set(two.tuning_seconds) == {"contextual", "contextual_capped"}
-    train, test = np.arange(0, 60, 2), np.arange(1, 60, 2)
+    train, test = np.arange(0, n, 2), np.arange(1, n, 2)
     h1 = box_core.holdout(S, train, test, **kw)
     h2 = box_core.holdout(S, train, test, **kw, workers=2)
     for name in h1.selectors:
