@@ -70,14 +70,12 @@ def test_the_neighbour_tables_are_built_once_per_evaluation(monkeypatch):
     # training outcomes, so their (n, m * blocks) table is built once, and without a cap
     # it keeps only the two blocks the model reads; the orders are the direct ones
     S, F, T, C, X = problem(30, 7, 3, seed=1)
-    built = []
+    built, build = [], contextual._entry_tables
 
     def counted(*args):
-        built.append(contextual._entry_tables_uncounted(*args))
+        built.append(build(*args))
         return built[-1]
 
-    monkeypatch.setattr(contextual, "_entry_tables_uncounted", contextual._entry_tables,
-                        raising=False)
     monkeypatch.setattr(contextual, "_entry_tables", counted)
     monkeypatch.setattr(contextual.Contextual, "fold_batch",
                         classmethod(lambda cls, n, m, k: min(n, 3)))
