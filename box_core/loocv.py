@@ -120,6 +120,7 @@ def loocv(
     instance_features=None,
     checks=None,
     until_feasible: bool = False,
+    until_best: bool = False,
     workers: int = 1,
 ) -> LoocvResult:
     """Leave-one-out evaluation of ``selectors`` on a score matrix (n x m, higher is better).
@@ -157,13 +158,13 @@ def loocv(
                   features=features, seed=seed, params=params, failure_rule=failure_rule,
                   time_grid=time_grid, measure_overhead=measure_overhead, forbidden=forbidden,
                   instance_features=instance_features, checks=checks,
-                  until_feasible=until_feasible, workers=workers)
+                  until_feasible=until_feasible, until_best=until_best, workers=workers)
 
 
 def _loocv(scores, *, times, feasible, selectors, k, features, seed, params, failure_rule,
            time_grid, measure_overhead, forbidden, rows=None, fast: bool = True,
-           instance_features=None, checks=None, until_feasible: bool = False, workers=1,
-           only=None, part=None, share=None):
+           instance_features=None, checks=None, until_feasible: bool = False,
+           until_best: bool = False, workers=1, only=None, part=None, share=None):
     """:func:`loocv`; ``rows``: hold out only these rows (each still with the prior of
     all the others; the result's rows are these); ``fast=False``: the unoptimised path
     (every instance through every step, nothing skipped: the same result, slower);
@@ -175,7 +176,7 @@ def _loocv(scores, *, times, feasible, selectors, k, features, seed, params, fai
                     failure_rule=failure_rule, time_grid=time_grid,
                     measure_overhead=measure_overhead, forbidden=forbidden, rows=rows,
                     fast=fast, instance_features=instance_features, checks=checks,
-                    until_feasible=until_feasible)
+                    until_feasible=until_feasible, until_best=until_best)
     setup = _Setup.check(scores, times, feasible, selectors, k, features, params,
                          failure_rule, min_rows=3, forbidden=forbidden,
                          instance_features=instance_features, checks=checks)
@@ -193,8 +194,8 @@ def _loocv(scores, *, times, feasible, selectors, k, features, seed, params, fai
 
     return setup.evaluate(prior.folds, outcomes, rows, seed, time_grid, measure_overhead,
                           fast=fast, train=np.arange(n), tuning=tuning,
-                          until_feasible=until_feasible, workers=workers, only=only,
-                          again=again, part=part, share=share)
+                          until_feasible=until_feasible, until_best=until_best,
+                          workers=workers, only=only, again=again, part=part, share=share)
 
 
 def holdout(
@@ -216,6 +217,7 @@ def holdout(
     instance_features=None,
     checks=None,
     until_feasible: bool = False,
+    until_best: bool = False,
     workers: int = 1,
 ) -> LoocvResult:
     """Like :func:`loocv`, but every row of ``test`` is run with the one prior fitted on the
@@ -232,13 +234,13 @@ def holdout(
                     failure_rule=failure_rule, time_grid=time_grid,
                     measure_overhead=measure_overhead, forbidden=forbidden,
                     instance_features=instance_features, checks=checks,
-                    until_feasible=until_feasible, workers=workers)
+                    until_feasible=until_feasible, until_best=until_best, workers=workers)
 
 
 def _holdout(scores, train, test, *, times, feasible, selectors, k, features, seed, params,
              failure_rule, time_grid, measure_overhead, forbidden, fast: bool = True,
-             instance_features=None, checks=None, until_feasible: bool = False, workers=1,
-             only=None, part=None, share=None):
+             instance_features=None, checks=None, until_feasible: bool = False,
+             until_best: bool = False, workers=1, only=None, part=None, share=None):
     """:func:`holdout`; ``fast=False``, ``only``, ``part`` and ``share`` as in
     :func:`_loocv`."""
     again = partial(_holdout, scores, train, test, times=times, feasible=feasible,
@@ -246,7 +248,7 @@ def _holdout(scores, train, test, *, times, feasible, selectors, k, features, se
                     failure_rule=failure_rule, time_grid=time_grid,
                     measure_overhead=measure_overhead, forbidden=forbidden, fast=fast,
                     instance_features=instance_features, checks=checks,
-                    until_feasible=until_feasible)
+                    until_feasible=until_feasible, until_best=until_best)
     setup = _Setup.check(scores, times, feasible, selectors, k, features, params,
                          failure_rule, min_rows=2, forbidden=forbidden,
                          instance_features=instance_features, checks=checks)
@@ -272,8 +274,8 @@ def _holdout(scores, train, test, *, times, feasible, selectors, k, features, se
 
     return setup.evaluate(lambda rows: prior.batch(rows.size), outcomes, test, seed,
                           time_grid, measure_overhead, fast=fast, train=train, tuning=tuning,
-                          until_feasible=until_feasible, workers=workers, only=only,
-                          again=again, part=part, share=share)
+                          until_feasible=until_feasible, until_best=until_best,
+                          workers=workers, only=only, again=again, part=part, share=share)
 
 
 def _row_indices(rows, n: int, name: str) -> np.ndarray:
@@ -371,7 +373,8 @@ class _Setup:
 
     def evaluate(self, fold_priors, fold_outcomes, test, seed, time_grid,
                  measure, fast: bool = True, train=None, tuning=None,
-                 until_feasible: bool = False, workers: int = 1, only=None,
+                 until_feasible: bool = False, until_best: bool = False,
+                 workers: int = 1, only=None,
                  again=None, part=None, share=None) -> LoocvResult:
         """Run every selector on the ``test`` rows; ``fold_priors(rows)`` and
         ``fold_outcomes(rows)`` give their priors and training outcomes, ``train`` the
@@ -388,12 +391,17 @@ class _Setup:
         ``again(only=..., share=...)`` (:func:`_halves`)."""
         D, T, feas, k = self.D[test], self.T[test], self.feas[test], self.k
         hidden = None if self.forbidden is None else self.forbidden[test]
+        allowed = D if hidden is None else np.where(hidden, -np.inf, D)
+        optimal = allowed.max(axis=1)
+        peak = allowed == optimal[:, None]  # the columns at the row's optimal score
+        hopeless = ~(feas if hidden is None else feas & ~hidden).any(axis=1)
         folds = _Folds(fold_priors, fold_outcomes, self.Dn[test], T, feas, hidden, self.theta,
                        test, seed, k, fast,
                        checks=None if self.checks is None else self.checks[test],
                        train_features=None if self.X is None else self.X[train],
                        query=None if self.X is None else self.X[test],
-                       until_feasible=until_feasible)
+                       until_feasible=until_feasible, until_best=until_best, peak=peak,
+                       hopeless=hopeless)
         names = self.names if only is None else tuple(only)
         tuned = [n for n in names if issubclass(self.classes[n], Contextual)]
         if share is not None:  # a second process's rows
@@ -409,22 +417,25 @@ class _Setup:
         if only is not None:
             return traces, settings, tuning_seconds
         traces = {n: traces[n] for n in names}  # the order selectors were given in
-        if until_feasible:
+        if until_feasible or until_best:
             for trace in traces.values():
-                _end_at_first_feasible(trace)
+                _end_where_done(trace, folds)
         if hidden is not None:
             feas = feas & ~hidden
         rows = np.arange(test.size)[:, None]
         totals = {  # cumulative time after each try: planning plus the selector's own time
             name: np.cumsum(tr.cost + tr.overhead, axis=1) for name, tr in traces.items()
         }
-        grid = _default_grid(totals, T) if time_grid is None else _checked_grid(time_grid)
+        every = None  # until_best: the time of every try a row may make, for the tails
+        if until_best:
+            every = (T if hidden is None else np.where(hidden, 0.0, T)).sum(axis=1).max()
+        grid = _default_grid(totals, T, every) if time_grid is None else _checked_grid(time_grid)
         result = LoocvResult(
             selectors=self.names,
             k=k,
             failure_value=self.d,
             eligible=feas.any(axis=1),
-            optimal_score=(D if hidden is None else np.where(hidden, -np.inf, D)).max(axis=1),
+            optimal_score=optimal,
             time_grid=grid,
             settings=settings,
             tuning_seconds=tuning_seconds,
@@ -687,13 +698,19 @@ def _serve() -> None:
     sys.stdout.buffer.flush()
 
 
-def _end_at_first_feasible(trace: TryTrace) -> None:
-    """Clear what ``trace`` holds after each row's first feasible try (loocv's
-    ``until_feasible``: the fast path may have stopped there, the others went on)."""
-    hit = trace.outcome == FEASIBLE
-    step = np.where(hit.any(axis=1), hit.argmax(axis=1), trace.order.shape[1])
-    after = np.arange(trace.order.shape[1])[None, :] > step[:, None]
-    trace.order[after] = -1
+def _end_where_done(trace: TryTrace, folds: _Folds) -> None:
+    """Clear what ``trace`` holds after the try at which each row was done
+    (:meth:`_Folds.done`: loocv's ``until_feasible`` or ``until_best``; the fast path may
+    have stopped there, the others went on)."""
+    order = trace.order
+    rows = np.arange(order.shape[0])[:, None]
+    ended = (trace.outcome == FEASIBLE) | (trace.outcome == FAILED)
+    found = np.logical_or.accumulate(trace.outcome == FEASIBLE, axis=1)
+    peaked = np.logical_or.accumulate(ended & folds.peak[rows, np.maximum(order, 0)], axis=1)
+    done = found if folds.until_feasible else (found | folds.hopeless[:, None]) & peaked
+    step = np.where(done.any(axis=1), done.argmax(axis=1), order.shape[1])
+    after = np.arange(order.shape[1])[None, :] > step[:, None]
+    order[after] = -1
     trace.allowance[after] = 0.0
     trace.cost[after] = 0.0
     trace.overhead[after] = 0.0
@@ -717,7 +734,7 @@ def _run_tries(cls, kwargs, folds, measure) -> TryTrace:
     policy = cls(ctx, **kwargs)
     setup = time.perf_counter() - clock
     trace = simulate(policy, folds.Dn, folds.feas, folds.T, folds.checks, folds.k,
-                     measure=measure)
+                     measure=measure, done=folds.done, peak=folds.peak)
     if measure and trace.overhead.size:
         trace.overhead[:, 0] += setup / rows.size
     return trace
@@ -744,6 +761,12 @@ class _Folds:
     query: np.ndarray | None = None  # instance features of the held-out rows
     #: rows may stop at their first feasible try (loocv's ``until_feasible``)
     until_feasible: bool = False
+    #: rows may stop once nothing later can change their curves (loocv's ``until_best``):
+    #: ``peak`` (B, m) the columns at the row's optimal score, ``hopeless`` (B,) the rows
+    #: without a feasible column they may try
+    until_best: bool = False
+    peak: np.ndarray | None = None
+    hopeless: np.ndarray | None = None
 
     def restrict(self, positions: np.ndarray) -> _Folds:
         """These folds for the held-out rows at ``positions`` only."""
@@ -754,7 +777,18 @@ class _Folds:
         return replace(self, Dn=self.Dn[positions], T=self.T[positions],
                        feas=self.feas[positions], hidden=rows(self.hidden),
                        test=self.test[positions], checks=rows(self.checks),
-                       query=rows(self.query))
+                       query=rows(self.query), peak=rows(self.peak),
+                       hopeless=rows(self.hopeless))
+
+    def done(self, here, found, peaked) -> np.ndarray:
+        """Which instances (rows ``here``) may stop: a plan ``found`` (until_feasible),
+        or, with until_best, a plan found (or none to find) and the optimal score
+        ``peaked``; none otherwise."""
+        if self.until_feasible:
+            return found
+        if self.until_best:
+            return (found | self.hopeless[here]) & peaked
+        return np.zeros(here.size, dtype=bool)
 
     def context(self, rows: np.ndarray, cls: type[Policy]) -> FoldContext:
         held = self.test[rows]
@@ -828,7 +862,7 @@ def _run_fast(cls: type[Policy], kwargs, folds: _Folds, measure):
         per = cls.bytes_per_instance(m, m, k)
         if per:
             live = m - int(folds.priors(folds.test).inert().sum())
-            if live == m and not folds.until_feasible:
+            if live == m and not (folds.until_feasible or folds.until_best):
                 # no constant column: nothing settles before the last try
                 return _run(cls, kwargs, folds, measure)
             per = cls.bytes_per_instance(m, live, k)
@@ -843,11 +877,12 @@ def _run_fast(cls: type[Policy], kwargs, folds: _Folds, measure):
         overhead[rows, 0] = (time.perf_counter() - clock) / rows.size
         here = rows  # the test row of each instance of the batch
         stepping = np.ones(rows.size, dtype=bool)  # not settled yet
-        found = np.zeros(rows.size, dtype=bool)  # until_feasible: a plan found, nothing more
+        found = np.zeros(rows.size, dtype=bool)  # a plan found
+        peaked = np.zeros(rows.size, dtype=bool)  # the row's optimal score found
         for t in range(k):
             clock = time.perf_counter()
             if settles:
-                ended = stepping & found
+                ended = stepping & folds.done(here, found, peaked)
                 listed = stepping & ~ended & policy.settled()
                 if listed.any():
                     at = np.flatnonzero(listed)
@@ -861,23 +896,28 @@ def _run_fast(cls: type[Policy], kwargs, folds: _Folds, measure):
                     if 2 * stepping.sum() <= stepping.size:  # the settled ones leave
                         kept = np.flatnonzero(stepping)
                         policy.keep(kept)
-                        here, stepping, found = here[kept], stepping[kept], found[kept]
+                        here, stepping = here[kept], stepping[kept]
+                        found, peaked = found[kept], peaked[kept]
             cols = policy.propose()
             policy.update(cols, folds.Dn[here, cols])
             live_rows = here[stepping]
             overhead[live_rows, t] += (time.perf_counter() - clock) / live_rows.size
             order[live_rows, t] = cols[stepping]
-            if folds.until_feasible:
-                found |= folds.feas[here, cols]
+            found |= folds.feas[here, cols]
+            if folds.until_best:
+                peaked |= folds.peak[here, cols]
         del policy  # its buffers go before the next batch's are made
     if not measure:
         overhead[:] = 0.0
     return order, overhead
 
 
-def _default_grid(totals, T) -> np.ndarray:
-    """0 followed by 199 log-spaced times from the cheapest try to the longest trace."""
+def _default_grid(totals, T, every=None) -> np.ndarray:
+    """0 followed by 199 log-spaced times from the cheapest try to the longest trace, or
+    to ``every`` (the longest time a row's every try could take) if that is later."""
     longest = max(float(total[:, -1].max()) for total in totals.values())
+    if every is not None:
+        longest = max(longest, float(every))
     positive = T[T > 0]
     shortest = float(positive.min()) if positive.size else 1.0
     longest = max(longest, shortest)

@@ -110,7 +110,8 @@ def summarize(result, reference: str = "box", level: float = 0.95, others=None) 
         else:
             times = result.first_feasible_time[name][eligible]
             steps = result.first_feasible_step[name][eligible]
-            overhead = float(result.overhead[name].mean() * 1e3)
+            made = result.order[name] >= 0  # the tries made (a row may stop early)
+            overhead = float(result.overhead[name][made].mean() * 1e3) if made.any() else 0.0
         found = ~np.isnan(times)
         mean, lo, hi = mean_ci(times, level)
         ratio, r_lo, r_hi = paired_ratio(times, ref_time, level)

@@ -59,14 +59,17 @@ class TryTrace:
 
 
 def simulate(policy, scores, feasible, times, checks, ends: int, *,
-             until_feasible: bool = False, measure: bool = False) -> TryTrace:
+             until_feasible: bool = False, measure: bool = False, done=None,
+             peak=None) -> TryTrace:
     """Run ``policy`` (one with ``propose_tries``, ``record``, ``ended``, ``settled``,
     ``remaining`` and ``keep``, see :class:`box_core.contextual.Contextual`) against its B
     instances' true rows (``scores``, ``feasible``, ``times``, ``checks``: (B, m);
     ``checks`` None: every try ends).  Each instance stops once ``ends`` of its tries have
     ended, or every column it may try has (or, with ``until_feasible``, at its first
-    plan).  Instances that stop leave the batch; a settled instance (no observation can
-    change its later choices) gets its remaining tries listed at once, uncapped."""
+    plan; or where ``done(instances, found, peaked)`` says so, given whether each has found
+    a plan and ended a try at a column of ``peak`` (B, m)).  Instances that stop leave the
+    batch; a settled instance (no observation can change its later choices) gets its
+    remaining tries listed at once, uncapped."""
     B, m = feasible.shape
     limit = np.minimum(ends, m - policy.tried.sum(axis=1))  # ended tries per instance
     width = 2 * int(limit.max(initial=0))
@@ -78,6 +81,8 @@ def simulate(policy, scores, feasible, times, checks, ends: int, *,
     here = np.arange(B)  # the instance of each row of the policy's batch
     step = np.zeros(B, dtype=np.intp)  # tries made, per instance
     ended = np.zeros(B, dtype=np.intp)
+    found = np.zeros(B, dtype=bool)  # a plan found, per instance
+    peaked = np.zeros(B, dtype=bool)  # a try at a column of peak ended, per instance
 
     def note(inst, cols, allow, spent):
         """Simulate and write down one try of each instance ``inst``."""
@@ -128,6 +133,11 @@ def simulate(policy, scores, feasible, times, checks, ends: int, *,
         stop = ended[here] >= limit[here]
         if until_feasible:
             stop |= outcome == FEASIBLE
+        if done is not None:
+            found[here] |= outcome == FEASIBLE
+            if peak is not None:
+                peaked[here] |= (outcome != PAUSED) & peak[here, cols]
+            stop |= done(here, found[here], peaked[here])
     if not measure:
         trace.overhead[:] = 0.0
     return trace

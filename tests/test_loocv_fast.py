@@ -353,3 +353,57 @@ def test_rows_split_between_two_processes_give_the_same_result(monkeypatch, wher
     assert_same(two, one)
     np.testing.assert_array_equal(two.first_feasible_step["box"],
                                   one.first_feasible_step["box"])
+
+
+def _assert_until_best_agrees(short, full):
+    """``short`` (until_best, run on ``full``'s time grid) has every first-feasible value
+    and every best-score curve of ``full``, and ``full``'s orders up to where it stopped."""
+    for name in full.selectors:
+        for field in ("first_feasible_step", "first_feasible_time",
+                      "first_feasible_planning_time", "best_score"):
+            np.testing.assert_array_equal(getattr(short, field)[name],
+                                          getattr(full, field)[name], err_msg=(name, field))
+        made = short.order[name] >= 0
+        assert (made[:, :-1] >= made[:, 1:]).all()  # a prefix per row, -1 after it
+        np.testing.assert_array_equal(short.order[name][made], full.order[name][made],
+                                      err_msg=name)
+
+
+@pytest.mark.parametrize("hide", [False, True])
+def test_until_best_gives_every_curve_and_first_feasible_value_of_the_full_run(hide):
+    """Rows that stop once they have a plan and their optimal score (what stage evaluate
+    stores and the figures read) leave every first-feasible value and best-score curve as
+    the full run has them, bit for bit on the same time grid, and most of BOX's steps
+    undone; the default grid still reaches the longest time a row's tries can take."""
+    data = score_matrix(80, 40, types=4, useful=10, per_type=2, seed=11)
+    feasible = data.feasible.copy()
+    feasible[::9] = False  # rows with no plan stop at their best failure
+    forbidden = np.random.default_rng(3).random(feasible.shape) < 0.05 if hide else None
+    kw = dict(times=data.times, feasible=feasible, features=data.features, seed=2,
+              selectors=ALL, measure_overhead=False, forbidden=forbidden)
+    train, test = np.arange(0, 80, 4), np.setdiff1d(np.arange(80), np.arange(0, 80, 4))
+    for run in (lambda **a: loocv(data.scores, **a),
+                lambda **a: holdout(data.scores, train, test, **a),
+                lambda **a: _loocv(data.scores, fast=False, **{**DEFAULTS, **a})):
+        full = run(**kw)
+        short = run(**kw, until_best=True, time_grid=full.time_grid)
+        _assert_until_best_agrees(short, full)
+        assert (short.order["box"] == -1).sum() > 0.5 * short.order["box"].size
+        grid = run(**kw, until_best=True).time_grid  # as far as the full run's, or further
+        assert grid[0] == full.time_grid[0] and grid[1] == full.time_grid[1]
+        assert grid[-1] >= full.time_grid[-1] * (1 - 1e-9)
+
+
+def test_until_best_with_capped_tries_and_a_second_process():
+    """The contextual selectors (tuned, capped tries simulated from stored checks) stop
+    their rows the same way, in one process or two."""
+    from tests.test_contextual import problem
+
+    S, F, T, C, X = problem(70, 8, 2, 5)
+    kw = dict(times=T, feasible=F, instance_features=X, checks=C, measure_overhead=False,
+              selectors=("box", "contextual", "contextual_capped", "eips", "static"))
+    full = loocv(S, **kw)
+    for workers in (1, 2):
+        short = loocv(S, **kw, until_best=True, time_grid=full.time_grid, workers=workers)
+        _assert_until_best_agrees(short, full)
+        assert (short.order["contextual_capped"] == -1).any()
