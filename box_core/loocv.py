@@ -846,9 +846,11 @@ def _run_fast(cls: type[Policy], kwargs, folds: _Folds, measure):
     An instance stops being updated once the policy says it is settled (no observation
     can change its later proposals: BOX once every untried column is constant, the fixed
     orders from the start); its remaining proposals are then listed at once.  With
-    ``until_feasible`` an instance also stops at its first feasible try (nothing after it
-    is listed).  Settled
-    instances leave the batch when they are half of it.  A batch holds as many instances
+    ``until_feasible`` an instance also stops at its first feasible try, with
+    ``until_best`` once it has a plan (or none to find) and its optimal score (nothing
+    after it is listed).  Instances that stopped leave the batch once they are a quarter
+    of it (what leaving costs is a copy of the batch's state; staying, every step's
+    arithmetic on them).  A batch holds as many instances
     as the policy's buffers allow within :data:`BATCH_BYTES_PER_ENTRY` (BOX keeps a row of
     W per observed column that is not constant); policies that never settle run in their
     usual batches.
@@ -858,6 +860,9 @@ def _run_fast(cls: type[Policy], kwargs, folds: _Folds, measure):
     order = np.full((n, k), -1, dtype=np.intp)
     overhead = np.zeros((n, k))
     settles = cls.settled is not Policy.settled
+    # rows that are done may leave the batch of a policy that can drop rows (its own keep)
+    stops = settles or ((folds.until_feasible or folds.until_best)
+                        and cls.keep is not Policy.keep)
     if settles:
         per = cls.bytes_per_instance(m, m, k)
         if per:
@@ -881,7 +886,7 @@ def _run_fast(cls: type[Policy], kwargs, folds: _Folds, measure):
         peaked = np.zeros(rows.size, dtype=bool)  # the row's optimal score found
         for t in range(k):
             clock = time.perf_counter()
-            if settles:
+            if stops:
                 ended = stepping & folds.done(here, found, peaked)
                 listed = stepping & ~ended & policy.settled()
                 if listed.any():
@@ -893,7 +898,7 @@ def _run_fast(cls: type[Policy], kwargs, folds: _Folds, measure):
                     if not stepping.any():
                         break
                     clock = time.perf_counter()
-                    if 2 * stepping.sum() <= stepping.size:  # the settled ones leave
+                    if 4 * stepping.sum() <= 3 * stepping.size:  # those done leave
                         kept = np.flatnonzero(stepping)
                         policy.keep(kept)
                         here, stepping = here[kept], stepping[kept]

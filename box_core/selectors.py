@@ -464,6 +464,12 @@ class Doo(Policy):
         self._bound[self._rows, cols] = -np.inf
         self._scale = np.maximum(self._scale, np.abs(scores))
 
+    def keep(self, folds: np.ndarray) -> None:
+        super().keep(folds)
+        self._bound, self._first, self._scale = (self._bound[folds], self._first[folds],
+                                                 self._scale[folds])
+        self._work = np.empty((folds.size, self.ctx.m))
+
 
 @dataclass(frozen=True, eq=False)
 class TrainingOutcomes:

@@ -169,7 +169,7 @@ def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, 
             data.scores, times=data.times, feasible=data.feasible, features=data.features,
             selectors=names, k=k, seed=seed, params=params, failure_rule=failure_rule,
             measure_overhead=overhead, forbidden=forbidden,
-            instance_features=data.instance_features, checks=data.checks,
+            instance_features=data.instance_features, checks=data.checks, until_best=True,
             workers=loocv_workers(int(np.prod(shape))),
         )
     except ValueError as exc:

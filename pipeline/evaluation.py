@@ -107,7 +107,7 @@ def evaluate(ctx: StageContext) -> None:
                                 params=selector_params(names, settings),
                                 failure_rule=settings["failure_rule"], forbidden=hide,
                                 instance_features=instance_features(store),
-                                checks=store.result(SCORES, CHECKS),
+                                checks=store.result(SCORES, CHECKS), until_best=True,
                                 workers=loocv_workers(scores.size))
     except ValueError as exc:
         raise ValueError(f"evaluate: {exc}") from None

@@ -3,8 +3,12 @@
 One dataset along ``selector`` (layout 4), so that ``xarray.open_zarr(store,
 group="evaluation").sel(selector="box")`` compares selectors without any concatenation::
 
-    order                (selector, instance, step)  columns tried, in order; -1 after the
-                                                     last try and for RAWPLANNER
+    order                (selector, instance, step)  columns tried, in order, up to the
+                                                     try after which nothing above can
+                                                     change (a plan found, or none to
+                                                     find, and the optimal score: loocv's
+                                                     until_best); -1 after it and for
+                                                     RAWPLANNER
     first_feasible_step  (selector, instance)        0-based step of the first feasible
                                                      try; -1: none (RAWPLANNER: -1)
     first_feasible_time  (selector, instance)        seconds to the first feasible plan
