@@ -57,11 +57,12 @@ FIELDS = ("scores", "times", "feasible", "features", "instance_features", "check
 COMPARED = ("order", "first_feasible_step", "first_feasible_planning_time")
 
 
-def agree(a: Path, b: Path, scores: np.ndarray, rows: np.ndarray) -> bool:
+def agree(a: Path, b: Path, plans: np.ndarray, rows: np.ndarray) -> bool:
     """Whether the results saved at ``a`` and ``b`` have the same first-feasible steps and
     planning times bit for bit, and orders that agree as far as both go, where the shorter
-    one (a row stopped at its best, -1 after) holds its row's best score of the longer:
-    then every best-score curve over planning time is the same too."""
+    one (a row stopped at its best, -1 after) holds its row's best plan of the longer
+    (``plans``: the scores of feasible entries, -inf elsewhere): then every best-score
+    curve over planning time is the same too."""
     x, y = np.load(a), np.load(b)
     if sorted(x.files) != sorted(y.files):
         return False
@@ -74,11 +75,10 @@ def agree(a: Path, b: Path, scores: np.ndarray, rows: np.ndarray) -> bool:
         both = (p >= 0) & (q >= 0)
         if not np.array_equal(p[both], q[both]):
             return False
-        D = scores[rows]
+        D = plans[rows]
         for i in range(p.shape[0]):
             short, full = sorted((p[i][p[i] >= 0], q[i][q[i] >= 0]), key=len)
-            if np.nanmax(D[i, full], initial=-np.inf) > np.nanmax(D[i, short],
-                                                                  initial=-np.inf):
+            if D[i, full].max(initial=-np.inf) > D[i, short].max(initial=-np.inf):
                 return False
     return True
 
@@ -171,7 +171,11 @@ def main() -> int:
                 out = Path(tmp) / f"{v}-{r}.npz"
                 runs[v].append({**run_child(__file__, dict(job, out=str(out)), root, v),
                                 "out": out})
-        scores = np.load(data)["scores"]
+        saved = np.load(data)
+        scores = saved["scores"]
+        feasible = (saved["feasible"] if "feasible" in saved.files
+                    else scores > np.nanmin(scores))  # box_core's rule without a mask
+        plans = np.where(feasible, scores, -np.inf)
         rows = np.arange(0, n, args.every)
         held = ("" if args.every == 1 else
                 f", every {args.every}th row held out ({-(-n // args.every)})")
@@ -185,7 +189,7 @@ def main() -> int:
               "  identical")
         for v, rs in runs.items():
             wall = statistics.median(r["wall"] for r in rs)
-            same = all(agree(r["out"], runs[reference][0]["out"], scores, rows) for r in rs)
+            same = all(agree(r["out"], runs[reference][0]["out"], plans, rows) for r in rs)
             print(f"  {label[v]:<36}{wall:>9.1f}{max(r['rss'] for r in rs):>10.0f}"
                   f"{max(r['rss_second'] for r in rs):>9.0f}{ref_wall / wall:>8.2f}x"
                   f"  {'yes' if same else 'NO'}")
