@@ -86,6 +86,25 @@ def loocv_workers(entries: int) -> int:
     return available_cores() if entries >= BESIDE_ENTRIES else 1
 
 
+def store_loocv(store, settings: dict, seed: int, **options) -> box_core.LoocvResult:
+    """box_core's leave-one-out of the ``evaluate.*`` ``settings`` on a finished store, as
+    stage ``evaluate`` runs it: each row's own constraints hidden (unless the settings say
+    otherwise), its instance features and checks for the contextual selectors, the cores
+    this process may use, and every row stopped once nothing stored can change
+    (``until_best``); ``options`` override box_core.loocv's arguments."""
+    names = evaluated_selectors(settings)
+    scores, feasible, times, theta = store.score_matrix()
+    return box_core.loocv(**{
+        "scores": scores, "times": times, "feasible": feasible, "features": theta,
+        "selectors": names, "k": settings["k"], "seed": seed,
+        "params": selector_params(names, settings),
+        "failure_rule": settings["failure_rule"],
+        "forbidden": hidden_constraints(own_constraints(store), settings),
+        "instance_features": instance_features(store),
+        "checks": store.result(SCORES, CHECKS), "until_best": True,
+        "workers": loocv_workers(scores.size), **options})
+
+
 def evaluate(ctx: StageContext) -> None:
     store = ctx.store
     settings = ctx.config["evaluate"]
@@ -96,19 +115,11 @@ def evaluate(ctx: StageContext) -> None:
             ctx.say("evaluate: already complete with these settings; nothing to do")
             print_stored_summary(ctx)
             return
-    names = evaluated_selectors(settings)
     with_raw = RAWPLANNER in settings["selectors"]
-    scores, feasible, times, theta = store.score_matrix()
     own = own_constraints(store)
     hide = hidden_constraints(own, settings)
     try:
-        result = box_core.loocv(scores, times=times, feasible=feasible, features=theta,
-                                selectors=names, k=settings["k"], seed=ctx.seed,
-                                params=selector_params(names, settings),
-                                failure_rule=settings["failure_rule"], forbidden=hide,
-                                instance_features=instance_features(store),
-                                checks=store.result(SCORES, CHECKS), until_best=True,
-                                workers=loocv_workers(scores.size))
+        result = store_loocv(store, settings, ctx.seed)
     except ValueError as exc:
         raise ValueError(f"evaluate: {exc}") from None
     others, curves = {}, {}
@@ -135,7 +146,7 @@ def evaluate(ctx: StageContext) -> None:
                         summary=summary.to_dict(), leakage=leakage,
                         selector_revision=box_core.SELECTOR_REVISION,
                         interval_method=INTERVAL_METHOD)
-    n, m = scores.shape
+    n, m = store.array(result_key(SCORES, FEASIBLE)).shape
     ctx.console.print(summary_table(summary, title=f"{ctx.path.name}  ({n} x {m})"))
 
 

@@ -182,3 +182,31 @@ def test_corrupted_chunk_is_reported_and_recomputed(reference, tmp_path):
     assert res.returncode == 0, res.stderr
     assert pr.same_matrix(D, pr.matrix(copy))
     assert "corrupted chunks found" not in pr.run(copy, "stage=status").stdout
+
+
+def test_stored_evaluation_is_the_full_runs_where_it_stops_early(reference):
+    """Stage evaluate stops each held-out row once it has its first plan (or none to
+    find) and its optimal score: the stored first feasible steps are a full run's through
+    every try, each stored order is the start of the full run's order, and it holds the
+    row's best plan of the full run (so the curves are the same)."""
+    from pipeline.evaluation import store_loocv
+    from pipeline.store import ScoreStore
+    from pipeline.store import evaluation as evaluation_store
+
+    path, _, D = reference
+    store = ScoreStore.open(path)
+    stored = evaluation_store.read(store)
+    seed = int(store.attrs.get("config", {}).get("seed", 0))
+    full = store_loocv(store, store.stage_info("evaluate")["settings"], seed,
+                       until_best=False, measure_overhead=False, workers=1)
+    plans = np.where(D["feasible"], D["score"], -np.inf)
+    stopped = 0
+    for name in full.selectors:
+        np.testing.assert_array_equal(stored.first_feasible_step[name],
+                                      full.first_feasible_step[name], err_msg=name)
+        for i, whole in enumerate(full.order[name]):
+            tried = stored.order[name][i][stored.order[name][i] >= 0]
+            assert tried.tolist() == whole[:tried.size].tolist(), (name, i)
+            assert plans[i, tried].max(initial=-np.inf) == plans[i, whole].max(initial=-np.inf)
+            stopped += tried.size < whole.size
+    assert stopped  # some row stopped before its last try
