@@ -155,6 +155,7 @@ def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, 
                      forbidden=None) -> None:
     """Run the LOOCV on loaded ``data`` and print its summary (table or JSON)."""
     from pipeline.evaluation import loocv_workers
+    from pipeline.planning.blas import single_thread_with_children
     from pipeline.validation import available_memory, evaluation_bytes, memory_text
 
     params = {"box": {"c": c}} if "box" in names else {}
@@ -165,13 +166,13 @@ def _evaluate_matrix(data: MatrixFile, file: Path, names: list[str], *, k=None, 
             _fail(f"{file}: evaluating a {shape[0]} x {shape[1]} matrix needs about "
                   f"{memory_text(need)} of memory, {memory_text(have)} is available")
     try:
-        result = box_core.loocv(
-            data.scores, times=data.times, feasible=data.feasible, features=data.features,
-            selectors=names, k=k, seed=seed, params=params, failure_rule=failure_rule,
-            measure_overhead=overhead, forbidden=forbidden,
-            instance_features=data.instance_features, checks=data.checks, until_best=True,
-            workers=loocv_workers(int(np.prod(shape))),
-        )
+        with single_thread_with_children():  # both processes: one BLAS thread each
+            result = box_core.loocv(
+                data.scores, times=data.times, feasible=data.feasible,
+                features=data.features, selectors=names, k=k, seed=seed, params=params,
+                failure_rule=failure_rule, measure_overhead=overhead, forbidden=forbidden,
+                instance_features=data.instance_features, checks=data.checks,
+                until_best=True, workers=loocv_workers(int(np.prod(shape))))
     except ValueError as exc:
         _fail(f"{file}: {exc}")
     except MemoryError:

@@ -90,19 +90,23 @@ def store_loocv(store, settings: dict, seed: int, **options) -> box_core.LoocvRe
     """box_core's leave-one-out of the ``evaluate.*`` ``settings`` on a finished store, as
     stage ``evaluate`` runs it: each row's own constraints hidden (unless the settings say
     otherwise), its instance features and checks for the contextual selectors, the cores
-    this process may use, and every row stopped once nothing stored can change
-    (``until_best``); ``options`` override box_core.loocv's arguments."""
+    this process may use, one BLAS thread in each process, and every row stopped once
+    nothing stored can change (``until_best``); ``options`` override box_core.loocv's
+    arguments."""
+    from pipeline.planning.blas import single_thread_with_children
+
     names = evaluated_selectors(settings)
     scores, feasible, times, theta = store.score_matrix()
-    return box_core.loocv(**{
-        "scores": scores, "times": times, "feasible": feasible, "features": theta,
-        "selectors": names, "k": settings["k"], "seed": seed,
-        "params": selector_params(names, settings),
-        "failure_rule": settings["failure_rule"],
-        "forbidden": hidden_constraints(own_constraints(store), settings),
-        "instance_features": instance_features(store),
-        "checks": store.result(SCORES, CHECKS), "until_best": True,
-        "workers": loocv_workers(scores.size), **options})
+    with single_thread_with_children():
+        return box_core.loocv(**{
+            "scores": scores, "times": times, "feasible": feasible, "features": theta,
+            "selectors": names, "k": settings["k"], "seed": seed,
+            "params": selector_params(names, settings),
+            "failure_rule": settings["failure_rule"],
+            "forbidden": hidden_constraints(own_constraints(store), settings),
+            "instance_features": instance_features(store),
+            "checks": store.result(SCORES, CHECKS), "until_best": True,
+            "workers": loocv_workers(scores.size), **options})
 
 
 def evaluate(ctx: StageContext) -> None:
