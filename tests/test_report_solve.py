@@ -12,6 +12,7 @@ import pytest
 import zarr
 
 import box_core
+from pipeline.evaluation import store_loocv
 from pipeline.store import ScoreStore
 from tests import pipeline_runs as pr
 
@@ -45,11 +46,21 @@ def test_evaluate_hides_each_instance_s_own_constraints_unless_told_not_to(made,
     assert own.any(axis=1).sum() >= 10  # planar constraints come from raw solutions
     m = own.shape[1]
     names = list(g["evaluation/selector"][...])
+    # the stored orders stop where nothing stored can change (-1 after); the run through
+    # every try is store_loocv's without until_best
+    opened = ScoreStore.open(store)
+    full = store_loocv(opened, opened.stage_info("evaluate")["settings"],
+                       int(opened.attrs.get("config", {}).get("seed", 0)),
+                       until_best=False, measure_overhead=False)
     for name in ("box", "eips", "fastest", "rand"):
         order = g["evaluation/order"][names.index(name)]
-        assert order.shape[1] == m - 1 and (order >= 0).all()
+        made = order >= 0
+        assert order.shape[1] == m - 1 and made[:, 0].all()
+        assert (made[:, :-1] >= made[:, 1:]).all()  # a prefix of the tries, then -1
+        assert (full.order[name] >= 0).all() and full.order[name].shape[1] == m - 1
+        assert (order[made] == full.order[name][made]).all(), name
         tried = np.zeros(own.shape, bool)
-        np.put_along_axis(tried, order, True, axis=1)
+        np.put_along_axis(tried, full.order[name], True, axis=1)
         assert not (tried & own).any(), name
     assert g.attrs["stages"]["evaluate"]["leakage"]["hidden"] is True
     copy = tmp_path / "leaky.zarr"
