@@ -148,6 +148,15 @@ def loocv(
     ends there (-1 after it) and ``best_score`` counts the tries up to it; every
     ``first_feasible_*`` value is the one a full run gives, bit for bit.
 
+    ``until_best=True`` is for callers that read the first feasible plans and the best
+    score curves (the summary, Fig. 4, the pipeline's stored evaluation): a row stops once
+    it has its first plan (or has none among the columns it may try) and has ended a try
+    at a column of its optimal score, after which neither can change; ``order`` ends there
+    (-1 after it).  Every ``first_feasible_*`` value and, on the same ``time_grid``, every
+    ``best_score`` curve is the one a full run gives, bit for bit; the default grid ends at
+    the longer of the traces and the time of every try a row may make.  With both flags a
+    row stops at its first plan.
+
     ``workers=2`` (or more) starts a second process: from 64 held-out rows on it takes the
     second half of the rows of the selectors that tune nothing and half the tuning groups
     of those that tune their settings (``contextual``, ``contextual_capped``: nested
@@ -226,8 +235,8 @@ def holdout(
     ``(seed, i)``, and the failure value comes from the whole matrix, as in :func:`loocv`;
     ``forbidden`` (n x m) as in :func:`loocv` (only the ``test`` rows' masks matter);
     ``instance_features`` and ``checks`` as in :func:`loocv` (settings the selector tunes
-    are tuned on the ``train`` rows); ``until_feasible`` and ``workers`` as in
-    :func:`loocv`.
+    are tuned on the ``train`` rows); ``until_feasible``, ``until_best`` and ``workers``
+    as in :func:`loocv`.
     """
     return _holdout(scores, train, test, times=times, feasible=feasible, selectors=selectors,
                     k=k, features=features, seed=seed, params=params,
