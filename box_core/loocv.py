@@ -716,7 +716,7 @@ def _end_where_done(trace: TryTrace, folds: _Folds) -> None:
     ended = (trace.outcome == FEASIBLE) | (trace.outcome == FAILED)
     found = np.logical_or.accumulate(trace.outcome == FEASIBLE, axis=1)
     peaked = np.logical_or.accumulate(ended & folds.peak[rows, np.maximum(order, 0)], axis=1)
-    done = found if folds.until_feasible else (found | folds.hopeless[:, None]) & peaked
+    done = folds.done(rows, found, peaked)  # (B, width): done by each try
     step = np.where(done.any(axis=1), done.argmax(axis=1), order.shape[1])
     after = np.arange(order.shape[1])[None, :] > step[:, None]
     order[after] = -1
@@ -790,9 +790,10 @@ class _Folds:
                        hopeless=rows(self.hopeless))
 
     def done(self, here, found, peaked) -> np.ndarray:
-        """Which instances (rows ``here``) may stop: a plan ``found`` (until_feasible),
-        or, with until_best, a plan found (or none to find) and the optimal score
-        ``peaked``; none otherwise."""
+        """Which instances (rows ``here``, or a column of them against a (B, width)
+        ``found`` and ``peaked``) may stop: a plan ``found`` (until_feasible), or, with
+        until_best, a plan found (or none to find) and the optimal score ``peaked``; none
+        otherwise."""
         if self.until_feasible:
             return found
         if self.until_best:
