@@ -97,13 +97,14 @@ def store_loocv(store, settings: dict, seed: int, **options) -> box_core.LoocvRe
 
     names = evaluated_selectors(settings)
     scores, feasible, times, theta = store.score_matrix()
+    if "forbidden" not in options:  # the stage passes what it has read already
+        options["forbidden"] = hidden_constraints(own_constraints(store), settings)
     with single_thread_with_children():
         return box_core.loocv(**{
             "scores": scores, "times": times, "feasible": feasible, "features": theta,
             "selectors": names, "k": settings["k"], "seed": seed,
             "params": selector_params(names, settings),
             "failure_rule": settings["failure_rule"],
-            "forbidden": hidden_constraints(own_constraints(store), settings),
             "instance_features": instance_features(store),
             "checks": store.result(SCORES, CHECKS), "until_best": True,
             "workers": loocv_workers(scores.size), **options})
@@ -123,7 +124,7 @@ def evaluate(ctx: StageContext) -> None:
     own = own_constraints(store)
     hide = hidden_constraints(own, settings)
     try:
-        result = store_loocv(store, settings, ctx.seed)
+        result = store_loocv(store, settings, ctx.seed, forbidden=hide)
     except ValueError as exc:
         raise ValueError(f"evaluate: {exc}") from None
     others, curves = {}, {}
