@@ -59,6 +59,9 @@ def per_pose(n: int) -> None:
             pos, orn = domain.pregrasp_pose(inst, g)
             if np.linalg.norm(pos - arm.shoulder) <= P.REACH:
                 poses.append((arm, pos, np.asarray(orn)))
+    if not poses:
+        print(f"IK per pose: none of {n} instances has a pre-grasp pose within reach")
+        return
     analytic_ik.candidates(*poses[0])  # warm-up: frankik's import, the URDF's offsets
     rows = {}
     for name in ("damped (4 restarts)", "analytic (all solutions)"):
@@ -177,17 +180,22 @@ def wrist_test(n: int) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--instances", type=int, default=5, help="instances of the per-pose part")
+    ap.add_argument("--instances", type=int, default=5,
+                    help="instances of the per-pose part; 0 skips it")
     ap.add_argument("--entry-instances", type=int, default=20,
                     help="instances of the per-entry part (x 162 entries); 0 skips it")
     ap.add_argument("--wrist-instances", type=int, default=20,
                     help="instances of the wrist test's part (x 162 entries); 0 skips it")
     args = ap.parse_args()
+    for name in ("instances", "entry_instances", "wrist_instances"):
+        if getattr(args, name) < 0:
+            ap.error(f"--{name.replace('_', '-')} must be >= 0")
     try:
         import frankik  # noqa: F401
     except ImportError:
         raise SystemExit("bench_ik.py needs the frankik package: pip install frankik") from None
-    per_pose(args.instances)
+    if args.instances:
+        per_pose(args.instances)
     if args.entry_instances:
         per_entry(args.entry_instances)
     if args.wrist_instances:
