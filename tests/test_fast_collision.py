@@ -144,6 +144,38 @@ def test_every_pybullet_contact_is_flagged_by_the_pre_check(grasp_arm):
     assert contacts > 50
 
 
+def test_the_other_arms_hulls_clear_only_what_pybullet_clears(grasp_arm):
+    """Where the arm's spheres touch the other arm's, the two links' collision hulls
+    decide (at least both margins apart: clear): every configuration they clear is free
+    for pybullet, and they clear many the spheres alone would send to pybullet."""
+    import dataclasses
+
+    domain = grasp_arm["exact"]
+    rng = np.random.default_rng(12)
+    cleared = 0
+    for seed in range(4):
+        scene = domain.scene(domain.check_instance(domain.sample_instance(60 + seed)))
+        arm, other = scene.arms[seed % 2], scene.arms[1 - seed % 2]
+        checker = FC.certified(arm).checker
+        world = checker.world
+        assert len(world.og_hull) and np.all(world.og_hlo < world.og_hhi)
+        spheres_only = dataclasses.replace(world, og_hull=None, og_hlo=None, og_hhi=None)
+        # configurations reaching towards the other arm: its side of the table
+        toward = np.arctan2(*(other.shoulder - arm.shoulder)[1::-1])
+        Q = np.clip(P.HOME + rng.normal(0, 0.8, (1000, 7)), P.LOWER, P.UPPER)
+        Q[:, 0] = np.clip(toward - arm.base_yaw + rng.normal(0, 0.4, 1000), P.LOWER[0],
+                          P.UPPER[0])
+        frames, wrist = checker.frames(Q), checker._pre(Q)  # the wrist table's doubts
+        before = checker.robot.uncertain(frames, spheres_only, wrist)
+        after = checker.robot.uncertain(frames, world, wrist)
+        assert not np.any(after & ~before)  # the hulls only ever clear
+        for q in Q[before & ~after]:
+            assert not arm.collides_at(q), (seed, q.tolist())
+            cleared += 1
+        arm.set(P.HOME)
+    assert cleared > 50
+
+
 # -- same answers as the exact checker -------------------------------------------------------
 def _same_answers(checker, exact, edges):
     for states in edges:

@@ -183,7 +183,8 @@ def _corners(c, R, h):
 
 def test_a_hull_shown_apart_is_apart():
     """_apart is a proof: whenever it says two sets are at least ``gap`` apart (a hull and
-    a box, or two hulls), they are; and it shows most pairs that are clearly apart."""
+    a box, or two hulls, from one array of vertices or from two), they are; and it shows
+    most pairs that are clearly apart."""
     rng = np.random.default_rng(4)
     F = np.hstack([np.eye(3), np.zeros((3, 1))])
     shown = clear = 0
@@ -198,10 +199,12 @@ def test_a_hull_shown_apart_is_apart():
         hulls = np.concatenate([A, B])
         d2 = _distance(A, B)
         for gap in (0.0025, 0.01):
-            if collide._apart(F, A, 0, len(A), F, 0, 0, c, R, h, gap):
+            if collide._apart(F, A, 0, len(A), F, A, 0, 0, c, R, h, gap):
                 assert d >= gap - 1e-9
                 shown += 1
-            if collide._apart(F, hulls, 0, 16, F, 16, 24, c, R, h, gap):
+            one = collide._apart(F, hulls, 0, 16, F, hulls, 16, 24, c, R, h, gap)
+            assert collide._apart(F, A, 0, 16, F, B, 0, 8, c, R, h, gap) == one
+            if one:
                 assert d2 >= gap - 1e-9
             clear += d > gap + 1e-4
     assert shown >= 0.95 * clear

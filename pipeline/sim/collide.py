@@ -326,10 +326,10 @@ def _nearest_on_simplex(W, k, v, lam):  # pragma: no cover (compiled)
 
 
 @njit(cache=True)
-def _apart(Fa, hull, alo, ahi, Fb, blo, bhi, c, R, h, gap):  # pragma: no cover (compiled)
+def _apart(Fa, hull, alo, ahi, Fb, hull_b, blo, bhi, c, R, h, gap):  # pragma: no cover
     """Are two convex sets certainly at least ``gap`` apart?  A is the hull of
-    hull[alo:ahi] in frame Fa; B is the hull of hull[blo:bhi] in frame Fb, or, when
-    blo == bhi, the box (c, R, h).
+    hull[alo:ahi] in frame Fa; B is the hull of hull_b[blo:bhi] in frame Fb, or, when
+    blo == bhi, the box (c, R, h).  (Compiled.)
 
     GJK (Gilbert, Johnson, Keerthi) looks for the point v of A - B nearest the origin;
     the answer is True only when every point of A - B projects at least ``gap`` onto v
@@ -351,7 +351,7 @@ def _apart(Fa, hull, alo, ahi, Fb, blo, bhi, c, R, h, gap):  # pragma: no cover 
     if boxed:
         _support_box(c, R, h, d, b)
     else:
-        _support_hull(Fb, hull, blo, bhi, d, b)
+        _support_hull(Fb, hull_b, blo, bhi, d, b)
     for i in range(3):
         v[i] = a[i] - b[i]
     k = 0
@@ -365,7 +365,7 @@ def _apart(Fa, hull, alo, ahi, Fb, blo, bhi, c, R, h, gap):  # pragma: no cover 
         if boxed:
             _support_box(c, R, h, v, b)
         else:
-            _support_hull(Fb, hull, blo, bhi, v, b)
+            _support_hull(Fb, hull_b, blo, bhi, v, b)
         # w = a - b is the point of A - B with the least projection onto v
         vw = v[0] * (a[0] - b[0]) + v[1] * (a[1] - b[1]) + v[2] * (a[2] - b[2])
         if vw >= gap * math.sqrt(vv):
@@ -498,7 +498,8 @@ ROBOT_PACK = (
 WORLD_PACK = (
     ("box_c", "f", 2), ("box_R", "f", 3), ("box_h", "f", 2), ("box_r", "f", 1),
     ("box_e", "f", 2), ("og_c", "f", 2), ("og_r", "f", 1), ("og_lo", "i", 1),
-    ("og_hi", "i", 1), ("obs_c", "f", 2), ("obs_r", "f", 1))
+    ("og_hi", "i", 1), ("obs_c", "f", 2), ("obs_r", "f", 1), ("og_hlo", "i", 1),
+    ("og_hhi", "i", 1), ("og_hull", "f", 2))
 
 
 def pack(values: dict, layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -589,11 +590,15 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
     box_c, box_R, box_h, box_r = _f2(wf, wm[0]), _f3(wf, wm[1]), _f2(wf, wm[2]), _f1(wf, wm[3])
     box_e, og_c, og_r = _f2(wf, wm[4]), _f2(wf, wm[5]), _f1(wf, wm[6])
     og_lo, og_hi, obs_c, obs_r = _f1(wi, wm[7]), _f1(wi, wm[8]), _f2(wf, wm[9]), _f1(wf, wm[10])
+    og_hlo, og_hhi, og_hull = _f1(wi, wm[11]), _f1(wi, wm[12]), _f2(wf, wm[13])
     G, S, B = grp_c.shape[0], sph_c.shape[0], box_c.shape[0]
     nil = np.int64(0)  # not the literal 0, which numba would compile _apart for once more
     proof = (in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_solid, box_c, box_R, box_h,
              box_r, depth)
     gw, sw = np.empty((G, 3)), np.empty((S, 3))
+    world_frame = np.zeros((3, 4))  # of og_hull's vertices (world coordinates)
+    for i in range(3):
+        world_frame[i, i] = 1.0
     done = np.zeros(G, dtype=np.bool_)
     R = rbox_T.shape[0]
     # the boxes each group (and each robot box) can reach while the root frame stands
@@ -715,8 +720,8 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
                 for s in range(grp_lo[g], grp_hi[g]):
                     if _sphere_box(sw[s], sph_r[s], box_c[m], box_R[m], box_h[m]):
                         if grp_hlo[g] < grp_hhi[g] and _apart(
-                                F, hull, grp_hlo[g], grp_hhi[g], F, nil, nil, box_c[m], box_R[m],
-                                box_h[m], gaps[0]):
+                                F, hull, grp_hlo[g], grp_hhi[g], F, hull, nil, nil, box_c[m],
+                                box_R[m], box_h[m], gaps[0]):
                             break
                         return steps, pos, _proved(kind, fr, *proof)
             for o in range(og_c.shape[0]):
@@ -728,6 +733,7 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
                     for s in range(grp_lo[g], grp_hi[g]):
                         _apply(F, sph_c[s], sw[s])
                     done[g] = True
+                touch = False
                 for s in range(grp_lo[g], grp_hi[g]):
                     for u in range(og_lo[o], og_hi[o]):
                         dx = sw[s, 0] - obs_c[u, 0]
@@ -735,7 +741,14 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
                         dz = sw[s, 2] - obs_c[u, 2]
                         reach = sph_r[s] + obs_r[u]
                         if dx * dx + dy * dy + dz * dz < reach * reach:
-                            return steps, pos, _proved(kind, fr, *proof)
+                            touch = True
+                            break
+                    if touch:
+                        break
+                if touch and not (grp_hlo[g] < grp_hhi[g] and og_hlo[o] < og_hhi[o] and _apart(
+                        F, hull, grp_hlo[g], grp_hhi[g], world_frame, og_hull, og_hlo[o],
+                        og_hhi[o], cw, Rw, cw, gaps[2])):
+                    return steps, pos, _proved(kind, fr, *proof)
         for k in range(pair_a.shape[0]):
             a, b = pair_a[k], pair_b[k]
             dx, dy, dz = gw[a, 0] - gw[b, 0], gw[a, 1] - gw[b, 1], gw[a, 2] - gw[b, 2]
@@ -768,8 +781,8 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
                 if touch:
                     break
             if touch and not (grp_hlo[a] < grp_hhi[a] and grp_hlo[b] < grp_hhi[b] and _apart(
-                    Fa, hull, grp_hlo[a], grp_hhi[a], Fb, grp_hlo[b], grp_hhi[b], cw, Rw, cw,
-                    gaps[2])):
+                    Fa, hull, grp_hlo[a], grp_hhi[a], Fb, hull, grp_hlo[b], grp_hhi[b], cw, Rw,
+                    cw, gaps[2])):
                 return steps, pos, _proved(kind, fr, *proof)
         for b in range(rbox_T.shape[0]):
             _place(fr[rbox_frame[b]], rbox_T[b], Rw, cw)
@@ -802,8 +815,8 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
                 for s in range(grp_lo[g], grp_hi[g]):
                     if _sphere_box(sw[s], sph_r[s], cw, Rw, rbox_h[b]):
                         if grp_hlo[g] < grp_hhi[g] and _apart(
-                                F, hull, grp_hlo[g], grp_hhi[g], F, nil, nil, cw, Rw, rbox_solid[b],
-                                gaps[1]):
+                                F, hull, grp_hlo[g], grp_hhi[g], F, hull, nil, nil, cw, Rw,
+                                rbox_solid[b], gaps[1]):
                             break
                         return steps, pos, _proved(kind, fr, *proof)
     return steps, rows, False

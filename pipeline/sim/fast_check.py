@@ -122,6 +122,9 @@ class World:
     og_hi: np.ndarray | None = None  # obs spheres og_lo[k]:og_hi[k], with a bounding
     og_c: np.ndarray | None = None  # sphere (og_c, og_r)
     og_r: np.ndarray | None = None
+    og_hull: np.ndarray | None = None  # the convex hull of what group k's spheres cover:
+    og_hlo: np.ndarray | None = None  # og_hull[og_hlo[k]:og_hhi[k]] (world coordinates;
+    og_hhi: np.ndarray | None = None  # an empty range: none known)
 
     def __post_init__(self):
         self.box_r = np.linalg.norm(self.box_h, axis=1)
@@ -132,13 +135,16 @@ class World:
             n = len(self.sph_r)
             self.og_lo, self.og_hi = np.arange(n), np.arange(1, n + 1)
             self.og_c, self.og_r = self.sph_c.copy(), self.sph_r.copy()
+        if self.og_hull is None:  # no hulls
+            self.og_hull = np.zeros((0, 3))
+            self.og_hlo = self.og_hhi = np.zeros(len(self.og_lo), dtype=np.int64)
 
     @classmethod
     def read(cls, client: int, skip, only=None) -> World | None:
         """Every body of ``client`` but those in ``skip`` (or the bodies ``only``); None
         when one is neither a box nor a Panda."""
         boxes, halves, bodies, centres, radii = [], [], [], [np.zeros((0, 3))], [np.zeros(0)]
-        groups = []
+        groups, hulls = [], [np.zeros((0, 3))]
         if only is None:
             only = [pb.getBodyUniqueId(i, physicsClientId=client)
                     for i in range(pb.getNumBodies(physicsClientId=client))]
@@ -159,6 +165,13 @@ class World:
                 groups += [(first + lo, first + hi, gc, gr) for lo, hi, gc, gr in parts]
                 centres.append(c)
                 radii.append(r)
+                verts, ends = _panda_obstacle_hulls(tuple(arm_state(client, body)),
+                                                    tuple(base_link_frame(client, body)[:3]
+                                                          .ravel()))
+                at = sum(len(h) for h in hulls)
+                groups[-len(parts):] = [(*g, at + lo, at + hi) for g, (lo, hi) in
+                                        zip(groups[-len(parts):], ends, strict=True)]
+                hulls.append(verts)
             else:
                 return None
         R = _matrices(np.array([b[1] for b in boxes]).reshape(-1, 4))
@@ -172,7 +185,9 @@ class World:
                    np.array([g[0] for g in groups], dtype=np.int64),
                    np.array([g[1] for g in groups], dtype=np.int64),
                    np.array([g[2] for g in groups]).reshape(-1, 3),
-                   np.array([g[3] for g in groups]))
+                   np.array([g[3] for g in groups]), np.concatenate(hulls),
+                   np.array([g[4] for g in groups], dtype=np.int64),
+                   np.array([g[5] for g in groups], dtype=np.int64))
 
 
     def packed(self) -> tuple:
@@ -181,7 +196,8 @@ class World:
             self._pack = collide.pack(dict(
                 box_c=self.box_c, box_R=self.box_R, box_h=self.box_h, box_r=self.box_r,
                 box_e=self.box_e, og_c=self.og_c, og_r=self.og_r, og_lo=self.og_lo,
-                og_hi=self.og_hi, obs_c=self.sph_c, obs_r=self.sph_r), collide.WORLD_PACK)
+                og_hi=self.og_hi, obs_c=self.sph_c, obs_r=self.sph_r, og_hlo=self.og_hlo,
+                og_hhi=self.og_hhi, og_hull=self.og_hull), collide.WORLD_PACK)
         return self._pack
 
     def join(self, other: World) -> World | None:
@@ -191,7 +207,8 @@ class World:
         return World(np.concatenate([self.box_c, other.box_c]),
                      np.concatenate([self.box_R, other.box_R]),
                      np.concatenate([self.box_h, other.box_h]), self.sph_c, self.sph_r,
-                     self.bodies + other.bodies, self.og_lo, self.og_hi, self.og_c, self.og_r)
+                     self.bodies + other.bodies, self.og_lo, self.og_hi, self.og_c, self.og_r,
+                     self.og_hull, self.og_hlo, self.og_hhi)
 
 
 class _Memo:
@@ -259,6 +276,23 @@ def _panda_obstacle(q: tuple, base: tuple):
         idx = np.flatnonzero(model.links == link)
         parts.append((idx[0], idx[-1] + 1, *_bounding(c[idx], model.radii[idx])))
     return c, model.radii, tuple(parts)
+
+
+@functools.lru_cache(maxsize=16)
+def _panda_obstacle_hulls(q: tuple, base: tuple) -> tuple[np.ndarray, tuple]:
+    """The links' collision hulls (:func:`pipeline.sim.spheres.panda_hulls`) of the Panda
+    of :func:`_panda_obstacle`, in world coordinates: (vertices, per link of
+    ``spheres.LINKS`` the (first, end) of its own)."""
+    frame = np.vstack([np.reshape(base, (3, 4)), [0.0, 0.0, 0.0, 1.0]])
+    frames = _arm_frames_fn(frame)(np.array([q]))[0]
+    hulls = spheres.panda_hulls()
+    verts, ends, at = [], [], 0
+    for link in spheres.LINKS:
+        F = frames[spheres.FRAME_OF_LINK[link]]
+        verts.append(hulls[link] @ F[:, :3].T + F[:, 3])
+        ends.append((at, at + len(hulls[link])))
+        at += len(hulls[link])
+    return np.ascontiguousarray(np.concatenate(verts)), tuple(ends)
 
 
 def _bounding(centres: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, float]:
