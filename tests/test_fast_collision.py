@@ -174,6 +174,12 @@ def test_the_other_arms_hulls_clear_only_what_pybullet_clears(grasp_arm):
             cleared += 1
         arm.set(P.HOME)
     assert cleared > 50
+    # under cached contacts a pybullet check left out could change a later answer
+    # (docs/contacts.md): there every row the spheres doubt is asked as before
+    cached = _domain("grasp_arm", "spheres", contacts="cached")
+    scene = cached.scene(cached.check_instance(cached.sample_instance(60)))
+    world = FC.certified(scene.arms[0]).checker.world
+    assert len(world.og_r) and not len(world.og_hull) and np.all(world.og_hlo == world.og_hhi)
 
 
 # -- same answers as the exact checker -------------------------------------------------------

@@ -140,11 +140,15 @@ class World:
             self.og_hlo = self.og_hhi = np.zeros(len(self.og_lo), dtype=np.int64)
 
     @classmethod
-    def read(cls, client: int, skip, only=None) -> World | None:
+    def read(cls, client: int, skip, only=None, hulls: bool = True) -> World | None:
         """Every body of ``client`` but those in ``skip`` (or the bodies ``only``); None
-        when one is neither a box nor a Panda."""
+        when one is neither a box nor a Panda.  ``hulls``: with another Panda's link hulls
+        (:data:`og_hull`), which let the scan clear rows without asking pybullet; only
+        where pybullet's answers do not depend on what it was asked before
+        (docs/contacts.md): under cached contacts a check left out could change a later
+        one."""
         boxes, halves, bodies, centres, radii = [], [], [], [np.zeros((0, 3))], [np.zeros(0)]
-        groups, hulls = [], [np.zeros((0, 3))]
+        groups, vertices = [], [np.zeros((0, 3))]
         if only is None:
             only = [pb.getBodyUniqueId(i, physicsClientId=client)
                     for i in range(pb.getNumBodies(physicsClientId=client))]
@@ -165,13 +169,16 @@ class World:
                 groups += [(first + lo, first + hi, gc, gr) for lo, hi, gc, gr in parts]
                 centres.append(c)
                 radii.append(r)
-                verts, ends = _panda_obstacle_hulls(tuple(arm_state(client, body)),
-                                                    tuple(base_link_frame(client, body)[:3]
-                                                          .ravel()))
-                at = sum(len(h) for h in hulls)
+                if hulls:
+                    verts, ends = _panda_obstacle_hulls(
+                        tuple(arm_state(client, body)),
+                        tuple(base_link_frame(client, body)[:3].ravel()))
+                    at = sum(len(h) for h in vertices)
+                    vertices.append(verts)
+                else:
+                    at, ends = 0, [(0, 0)] * len(parts)
                 groups[-len(parts):] = [(*g, at + lo, at + hi) for g, (lo, hi) in
                                         zip(groups[-len(parts):], ends, strict=True)]
-                hulls.append(verts)
             else:
                 return None
         R = _matrices(np.array([b[1] for b in boxes]).reshape(-1, 4))
@@ -185,7 +192,7 @@ class World:
                    np.array([g[0] for g in groups], dtype=np.int64),
                    np.array([g[1] for g in groups], dtype=np.int64),
                    np.array([g[2] for g in groups]).reshape(-1, 3),
-                   np.array([g[3] for g in groups]), np.concatenate(hulls),
+                   np.array([g[3] for g in groups]), np.concatenate(vertices),
                    np.array([g[4] for g in groups], dtype=np.int64),
                    np.array([g[5] for g in groups], dtype=np.int64))
 
@@ -239,16 +246,17 @@ def _key_of(array, digits: int = 9) -> bytes:
     return np.round(np.asarray(array, float), digits).tobytes()
 
 
-def read_world(client: int, skip, key=None, moving=()) -> World | None:
+def read_world(client: int, skip, key=None, moving=(), hulls: bool = True) -> World | None:
     """:meth:`World.read` of every body but ``skip``.  With a ``key`` (a scene's promise:
     the same key, the same bodies at the same poses, apart from ``skip`` and ``moving``),
     the world is read once per key; the bodies ``moving`` (parts of the robot that the
     world must include, such as a platform standing still under a moving arm) are read
-    every time."""
+    every time.  ``hulls``: see :meth:`World.read`."""
     if key is None:
-        return World.read(client, skip)
-    static_key = (client, frozenset(skip) | frozenset(moving), key)
-    static = _WORLDS.get(static_key, lambda: World.read(client, set(skip) | set(moving)))
+        return World.read(client, skip, hulls=hulls)
+    static_key = (client, frozenset(skip) | frozenset(moving), key, hulls)
+    static = _WORLDS.get(static_key, lambda: World.read(client, set(skip) | set(moving),
+                                                        hulls=hulls))
     if static is None or not moving:
         return static
 
@@ -810,12 +818,13 @@ def arm_checker(client: int, arm_body: int, ignored_pairs, exact, *, held=None,
     ``hand_links`` are the grasp); ``fixed_robot``: bodies of the same robot that do not
     move (a platform): the arm and the held box must not touch them, and they must not
     touch the world (asked of pybullet's contacts; ``fresh_contacts``: each cached
-    penetration confirmed afresh, as the robot's own checks do).  ``world_key``: see
+    penetration confirmed afresh, as the robot's own checks do; then also another
+    Panda's link hulls clear rows, :meth:`World.read`).  ``world_key``: see
     :func:`read_world`.
     """
     robot, frames, ok = _arm_robot(client, arm_body, ignored_pairs, held, hand_links)
     world = read_world(client, {arm_body} | ({held[0]} if held is not None else set()),
-                       world_key, moving=tuple(fixed_robot))
+                       world_key, moving=tuple(fixed_robot), hulls=fresh_contacts)
     certified = ok and world is not None
     if certified and fixed_robot:
         # a fixed part of the robot is a box of the world, and must not touch the rest of
@@ -1021,7 +1030,8 @@ def certified_panda(model) -> CertifiedRobot:
     """A fixed Panda's (:class:`pipeline.sim.panda.Panda`) sphere-certified model."""
     compile_kernels()
     return CertifiedRobot(model, arm_checker(model.client, model.body, model.ignored_pairs,
-                                             model.collides_at))
+                                             model.collides_at,
+                                             fresh_contacts=model.fresh_contacts))
 
 
 def certified_mobile_arm(model) -> CertifiedRobot:
