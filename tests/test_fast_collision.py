@@ -182,6 +182,43 @@ def test_the_other_arms_hulls_clear_only_what_pybullet_clears(grasp_arm):
     assert len(world.og_r) and not len(world.og_hull) and np.all(world.og_hlo == world.og_hhi)
 
 
+def test_wrist_hulls_clear_only_what_pybullet_clears(grasp_arm):
+    """Where the wrist table may hold a contact, the wrist pairs' spheres and hulls decide
+    as for the other link pairs: every configuration they clear is free for pybullet,
+    and they clear many the table alone would send to pybullet."""
+    from pipeline.sim import collide
+
+    domain = grasp_arm["exact"]
+    rng = np.random.default_rng(21)
+    cleared = 0
+    for seed in range(3):
+        scene = domain.scene(domain.check_instance(domain.sample_instance(70 + seed)))
+        arm = scene.arms[seed % 2]
+        checker = FC.certified(arm).checker
+        kind, psi, step, table, chain, packed, memo = checker._motion_args()
+        assert len(chain[3])  # fresh contacts: the wrist pairs are given to the scan
+        table_only = (*chain[:3], collide.NO_CHAIN[3])
+        # wrist angles near the limits, where the hand folds onto the forearm
+        Q = rng.uniform(P.LOWER, P.UPPER, (1500, 7))
+        Q[:, 5] = rng.choice([P.LOWER[5], P.UPPER[5]], 1500) + rng.normal(0, 0.4, 1500)
+        Q = np.clip(Q, P.LOWER, P.UPPER)
+        table.uncertain(Q)  # every cell these fall into is known
+        for q in Q:
+            def clear(ch, q=q):
+                return collide.edge_first(q, q, 1.0, 1, 0, kind, psi, step, table.state, ch,
+                                          packed, None)[1] == 1
+            before, after = clear(table_only), clear(chain)
+            assert after or not before  # the hulls only ever clear
+            if after and not before:
+                assert not arm.collides_at(q), (seed, q.tolist())
+                cleared += 1
+        arm.set(P.HOME)
+    assert cleared > 50
+    cached = _domain("grasp_arm", "spheres", contacts="cached")  # as for the other arm
+    scene = cached.scene(cached.check_instance(cached.sample_instance(70)))
+    assert not len(FC.certified(scene.arms[0]).checker._motion_args()[4][3])
+
+
 # -- same answers as the exact checker -------------------------------------------------------
 def _same_answers(checker, exact, edges):
     for states in edges:

@@ -541,6 +541,37 @@ def _memo_views(memo_i, G, R, B):  # pragma: no cover (compiled)
 
 
 @njit(cache=True)
+def _wrist_apart(fr, wrist_pairs, grp_frame, grp_c, grp_r, grp_lo, grp_hi, sph_c, sph_r, hull,
+                 grp_hlo, grp_hhi, sw, c, R, gap):  # pragma: no cover (compiled)
+    """Is every pair of groups in ``wrist_pairs`` (P, 2) at frames ``fr`` certainly apart,
+    by the test the scan makes of its other link pairs: no sphere of one touches a sphere
+    of the other, or their hulls are at least ``gap`` apart (:func:`_apart`)?  ``sw``:
+    the scan's scratch for sphere centres; ``c``, ``R``: scratch."""
+    for k in range(wrist_pairs.shape[0]):
+        a, b = wrist_pairs[k, 0], wrist_pairs[k, 1]
+        Fa, Fb = fr[grp_frame[a]], fr[grp_frame[b]]
+        for s in range(grp_lo[a], grp_hi[a]):
+            _apply(Fa, sph_c[s], sw[s])
+        for s in range(grp_lo[b], grp_hi[b]):
+            _apply(Fb, sph_c[s], sw[s])
+        touch = False
+        for s in range(grp_lo[a], grp_hi[a]):
+            for u in range(grp_lo[b], grp_hi[b]):
+                dx, dy, dz = sw[s, 0] - sw[u, 0], sw[s, 1] - sw[u, 1], sw[s, 2] - sw[u, 2]
+                reach = sph_r[s] + sph_r[u]
+                if dx * dx + dy * dy + dz * dz < reach * reach:
+                    touch = True
+                    break
+            if touch:
+                break
+        if touch and not (grp_hlo[a] < grp_hhi[a] and grp_hlo[b] < grp_hhi[b] and _apart(
+                Fa, hull, grp_hlo[a], grp_hhi[a], Fb, hull, grp_hlo[b], grp_hhi[b], c, R, c,
+                gap)):
+            return False
+    return True
+
+
+@njit(cache=True)
 def _planar_candidates(qa, qb, root_c, root_r, box_c, box_e):  # pragma: no cover (compiled)
     """The boxes that the root sphere (``root_c`` in the base frame, radius ``root_r``) of
     a base moving in a straight line from (x, y) = qa[:2] to qb[:2] can reach: the others
@@ -569,14 +600,16 @@ def _planar_candidates(qa, qb, root_c, root_r, box_c, box_e):  # pragma: no cove
 
 @njit(cache=True)
 def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_step,
-          wrist_state, base, origins, wrist_lower, rf, ri, rm, wf, wi, wm, root_frame, root_r,
-          depth, memo_f, memo_i):  # pragma: no cover (compiled)
+          wrist_state, base, origins, wrist_lower, wrist_pairs, rf, ri, rm, wf, wi, wm,
+          root_frame, root_r, depth, memo_f, memo_i):  # pragma: no cover (compiled)
     """The scan of :func:`first_uncertain` (``kind`` 2: the configurations' ``frames``
     and ``pre`` are given) and of :func:`edge_first` (``kind`` 0: an arm, 1: a base; the
     configurations are made on the way).  Returns (steps, position, proved): proved when
     the configuration at ``position`` certainly collides (:func:`_proved`; never asked for
     ``kind`` 2).  ``rf``, ``ri``, ``rm``: the robot's arrays (``ROBOT_PACK``, :func:`pack`);
-    ``wf``, ``wi``, ``wm``: the world's (``WORLD_PACK``)."""
+    ``wf``, ``wi``, ``wm``: the world's (``WORLD_PACK``).  ``wrist_pairs``: (P, 2) the
+    groups of an arm's wrist pairs, or none: a configuration whose wrist cell may hold a
+    contact is cleared all the same where those pairs are apart (:func:`_wrist_apart`)."""
     grp_frame, grp_c, grp_r = _f1(ri, rm[0]), _f2(rf, rm[1]), _f1(rf, rm[2])
     grp_lo, grp_hi, grp_world = _f1(ri, rm[3]), _f1(ri, rm[4]), _f1(ri, rm[5])
     sph_c, sph_r, pair_a, pair_b = _f2(rf, rm[6]), _f1(rf, rm[7]), _f1(ri, rm[8]), _f1(ri, rm[9])
@@ -653,7 +686,9 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
                 if cell == 0:
                     return steps, -1 - pos, False
                 _chain(q, base, origins, fr)
-                if cell != 1:
+                if cell != 1 and not (cell == 2 and wrist_pairs.shape[0] > 0 and _wrist_apart(
+                        fr, wrist_pairs, grp_frame, grp_c, grp_r, grp_lo, grp_hi, sph_c, sph_r,
+                        hull, grp_hlo, grp_hhi, sw, rw, Rw, gaps[2])):
                     return steps, pos, _proved(kind, fr, *proof)
             else:
                 psi = q[2] / psi_scale
@@ -826,7 +861,9 @@ _NO_STATE = np.empty(0)
 _NO_PRE = np.zeros(0, dtype=np.bool_)
 _NO_FRAMES = np.empty((0, 1, 3, 4))
 _NO_CELLS = np.ones((1, 1), dtype=np.int8)
-_NO_CHAIN = (np.zeros((3, 4)), np.zeros((7, 3, 4)), np.zeros(2))
+#: an edge scan's arm chain where there is none: base frame, joint origins, wrist grid
+#: origin, wrist pairs
+NO_CHAIN = (np.zeros((3, 4)), np.zeros((7, 3, 4)), np.zeros(2), np.zeros((0, 2), np.int64))
 _NO_MEMO = np.zeros(0, dtype=np.int64)
 
 
@@ -851,7 +888,7 @@ def first_uncertain(frames, start, pre, packed) -> int:
     each group and robot box: boxes they miss are not looked at.
     """
     return _scan(2, frames, pre, _NO_STATE, _NO_STATE, 1.0, 0, start, 1.0, 1.0, _NO_CELLS,
-                 *_NO_CHAIN, *packed, _NO_STATE, _NO_MEMO)[1]
+                 *NO_CHAIN, *packed, _NO_STATE, _NO_MEMO)[1]
 
 
 def edge_first(a, b, resolution, limit, start, kind, psi_scale, wrist_step, wrist_state,
@@ -864,7 +901,8 @@ def edge_first(a, b, resolution, limit, start, kind, psi_scale, wrist_step, wris
     position >= start that may collide, or min(steps, limit) when none may, whether it
     certainly collides: an inner sphere or robot box deep in a world box, or an inner
     sphere deep in a robot box it is tested against).  ``kind`` 0: an arm (``chain``:
-    (base frame, joint origins, wrist grid origin): the chain of :func:`arm_frames` on the
+    (base frame, joint origins, wrist grid origin, wrist pairs as :func:`_scan` takes
+    them): the chain of :func:`arm_frames` on the
     base frame, and the wrist table ``wrist_state`` on a grid of ``wrist_step`` from the
     wrist grid origin: a cell not known free is a doubt; a cell not
     known at all ends the scan with position -1 - k, for the caller to fill it); 1: a base

@@ -59,7 +59,6 @@ INTERNAL_CLEARANCE = 1e-4
 
 
 _NO_CELLS = np.ones((1, 1), dtype=np.int8)
-_NO_CHAIN = (np.zeros((3, 4)), np.zeros((7, 3, 4)), np.zeros(2))
 
 
 def _matrices(quaternions: np.ndarray) -> np.ndarray:
@@ -585,7 +584,8 @@ class SphereChecker:
         self.also = also  # more rows to send to ``exact`` (say, the wrist table's)
         self.stats = {"rows": 0, "exact": 0, "proved": 0}
         #: how :meth:`motion` makes a motion's frames without making its states:
-        #: ("arm", base link frame 3 × 4, chain origins, wrist table) or ("base", psi_scale)
+        #: ("arm", base link frame 3 × 4, chain origins, wrist table, whether the exact
+        #: check confirms contacts afresh) or ("base", psi_scale)
         self._motion = motion if self.certified else None
         self._args = None
         #: motions (a, b, resolution) refuted by geometry alone: the first row in check
@@ -733,9 +733,10 @@ class SphereChecker:
             table = kind[3]
             chain = (np.ascontiguousarray(kind[1], dtype=float),
                      np.ascontiguousarray(kind[2], dtype=float),
-                     np.ascontiguousarray(table.lower, dtype=float))
+                     np.ascontiguousarray(table.lower, dtype=float),
+                     _wrist_groups(table.pairs) if kind[4] else collide.NO_CHAIN[3])
             return 0, 1.0, wrist.STEP, table, chain, packed, memo
-        return 1, float(kind[1]), 1.0, None, _NO_CHAIN, packed, memo
+        return 1, float(kind[1]), 1.0, None, collide.NO_CHAIN, packed, memo
 
 
 def _arm_frames_fn(base: np.ndarray):
@@ -841,7 +842,15 @@ def arm_checker(client: int, arm_body: int, ignored_pairs, exact, *, held=None,
              fresh_contacts), apart)
     table = wrist_table(ignored_pairs)
     return SphereChecker(robot, world, frames, exact, certified, also=table.uncertain,
-                         motion=("arm", frames.base34, frames.origins, table))
+                         motion=("arm", frames.base34, frames.origins, table, fresh_contacts))
+
+
+def _wrist_groups(pairs: tuple) -> np.ndarray:
+    """(P, 2) the groups (:func:`panda_groups`' order) of the wrist table's link pairs,
+    whose hulls shown apart clear a configuration the table is in doubt about (the
+    scan's ``wrist_pairs``).  Only under fresh contacts (:meth:`World.read`'s reason)."""
+    return np.array([[spheres.LINKS.index(a), spheres.LINKS.index(b)] for a, b in pairs],
+                    dtype=np.int64).reshape(-1, 2)
 
 
 def base_checker(client: int, arm_body: int, platform: int, base_pose: np.ndarray,
