@@ -204,10 +204,9 @@ def test_wrist_hulls_clear_only_what_pybullet_clears(grasp_arm):
         Q = np.clip(Q, P.LOWER, P.UPPER)
         table.uncertain(Q)  # every cell these fall into is known
         for q in Q:
-            def clear(ch, q=q):
-                return collide.edge_first(q, q, 1.0, 1, 0, kind, psi, step, table.state, ch,
-                                          packed, None)[1] == 1
-            before, after = clear(table_only), clear(chain)
+            before, after = (collide.edge_first(q, q, 1.0, 1, 0, kind, psi, step, table.state,
+                                                ch, packed, None)[1] == 1
+                             for ch in (table_only, chain))
             assert after or not before  # the hulls only ever clear
             if after and not before:
                 assert not arm.collides_at(q), (seed, q.tolist())

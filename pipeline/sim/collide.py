@@ -669,9 +669,11 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
     ni, nk = wrist_state.shape[0], wrist_state.shape[1]
     for pos in range(start, rows):
         if kind == 2:
-            if pre[pos]:
-                return steps, pos, False
             fr = frames[pos]
+            if pre[pos] and not (wrist_pairs.shape[0] > 0 and _wrist_apart(
+                    fr, wrist_pairs, grp_frame, grp_c, grp_r, grp_lo, grp_hi, sph_c, sph_r, hull,
+                    grp_hlo, grp_hhi, sw, rw, Rw, gaps[2])):
+                return steps, pos, False
         else:
             fr = buf
             t = (order[pos] + 1) / steps
@@ -867,9 +869,11 @@ NO_CHAIN = (np.zeros((3, 4)), np.zeros((7, 3, 4)), np.zeros(2), np.zeros((0, 2),
 _NO_MEMO = np.zeros(0, dtype=np.int64)
 
 
-def first_uncertain(frames, start, pre, packed) -> int:
+def first_uncertain(frames, start, pre, packed, wrist_pairs=None) -> int:
     """The first configuration n >= ``start`` (its frames: frames[n], F × 3 × 4) that may
-    collide, or N when none may; ``pre[n]`` marks configurations already in doubt.
+    collide, or N when none may; ``pre[n]`` marks configurations already in doubt (with
+    ``wrist_pairs``, an arm's wrist pairs as :func:`_scan` takes them: in doubt for the
+    wrist table only, and cleared where those pairs are apart).
     ``packed``: the robot's arrays (``ROBOT_PACK``) and the world's (``WORLD_PACK``) as
     :func:`pack` lays them out, then the root frame and radius and the proof depth.
 
@@ -887,8 +891,9 @@ def first_uncertain(frames, start, pre, packed) -> int:
     holds the whole robot; spheres with its centre and radii grp_reach, rbox_reach hold
     each group and robot box: boxes they miss are not looked at.
     """
+    pairs = NO_CHAIN[3] if wrist_pairs is None else wrist_pairs
     return _scan(2, frames, pre, _NO_STATE, _NO_STATE, 1.0, 0, start, 1.0, 1.0, _NO_CELLS,
-                 *NO_CHAIN, *packed, _NO_STATE, _NO_MEMO)[1]
+                 *NO_CHAIN[:3], pairs, *packed, _NO_STATE, _NO_MEMO)[1]
 
 
 def edge_first(a, b, resolution, limit, start, kind, psi_scale, wrist_step, wrist_state,

@@ -400,12 +400,15 @@ class SphereRobot:
                    _inner_vs_boxes(inner, boxes, box_pairs))
 
     def first(self, frames: np.ndarray, world: World, start: int = 0,
-              pre: np.ndarray | None = None) -> int:
+              pre: np.ndarray | None = None, wrist_pairs: np.ndarray | None = None) -> int:
         """The first row >= ``start`` of ``frames`` (N, F, 3, 4) that may collide (or
-        marked in ``pre``), N when none may."""
+        marked in ``pre``: with ``wrist_pairs``, a row the wrist table doubts, which these
+        pairs shown apart clear; :func:`pipeline.sim.collide.first_uncertain`), N when
+        none may."""
         if pre is None:
             pre = np.zeros(len(frames), dtype=np.bool_)
-        return int(collide.first_uncertain(frames, start, pre, self.packed(world)))
+        return int(collide.first_uncertain(frames, start, pre, self.packed(world),
+                                           wrist_pairs))
 
     def packed(self, world: World) -> tuple:
         """The robot's and ``world``'s arrays as :func:`pipeline.sim.collide.pack` lays
@@ -434,14 +437,14 @@ class SphereRobot:
             or (len(self.in_r) and collide.sphere_hit(frames, n, self.in_frame, self.in_c,
                                                       self.in_r, *boxes)))
 
-    def uncertain(self, frames: np.ndarray, world: World,
-                  pre: np.ndarray | None = None) -> np.ndarray:
-        """(N,) whether each row may collide."""
+    def uncertain(self, frames: np.ndarray, world: World, pre: np.ndarray | None = None,
+                  wrist_pairs: np.ndarray | None = None) -> np.ndarray:
+        """(N,) whether each row may collide (:meth:`first`'s arguments)."""
         out = np.zeros(len(frames), dtype=bool)
-        k = self.first(frames, world, 0, pre)
+        k = self.first(frames, world, 0, pre, wrist_pairs)
         while k < len(frames):
             out[k] = True
-            k = self.first(frames, world, k + 1, pre)
+            k = self.first(frames, world, k + 1, pre, wrist_pairs)
         return out
 
 
@@ -587,6 +590,10 @@ class SphereChecker:
         #: ("arm", base link frame 3 × 4, chain origins, wrist table, whether the exact
         #: check confirms contacts afresh) or ("base", psi_scale)
         self._motion = motion if self.certified else None
+        #: the groups of the wrist pairs whose hulls may clear a row the wrist table (then
+        #: ``also``) doubts, or None: only under fresh contacts (:func:`_wrist_groups`)
+        self._wrist = (_wrist_groups(motion[3].pairs) if self._motion is not None
+                       and motion[0] == "arm" and motion[4] else None)
         self._args = None
         #: motions (a, b, resolution) refuted by geometry alone: the first row in check
         #: order that is not cleared is a proven collision (``motion``'s rows)
@@ -605,7 +612,8 @@ class SphereChecker:
         if not self.certified:
             return np.ones(len(states), dtype=bool)
         states = np.ascontiguousarray(states, float)
-        return self.robot.uncertain(self.frames(states), self.world, self._pre(states))
+        return self.robot.uncertain(self.frames(states), self.world, self._pre(states),
+                                    self._wrist)
 
     def __call__(self, states: np.ndarray) -> tuple[bool, int]:
         states = np.atleast_2d(states)
@@ -621,7 +629,7 @@ class SphereChecker:
             return True, n
         states = np.ascontiguousarray(states, float)
         frames, pre = self.frames(states), self._pre(states)
-        k = self.robot.first(frames, self.world, 0, pre)
+        k = self.robot.first(frames, self.world, 0, pre, self._wrist)
         while k < n:
             if self.robot.surely_hits(frames, k, self.world):
                 self.stats["proved"] += 1
@@ -629,7 +637,7 @@ class SphereChecker:
             self.stats["exact"] += 1
             if self.exact(states[k]):
                 return False, k + 1
-            k = self.robot.first(frames, self.world, k + 1, pre)
+            k = self.robot.first(frames, self.world, k + 1, pre, self._wrist)
         return True, n
 
     def motion(self, a: np.ndarray, b: np.ndarray, resolution: float,
@@ -734,7 +742,7 @@ class SphereChecker:
             chain = (np.ascontiguousarray(kind[1], dtype=float),
                      np.ascontiguousarray(kind[2], dtype=float),
                      np.ascontiguousarray(table.lower, dtype=float),
-                     _wrist_groups(table.pairs) if kind[4] else collide.NO_CHAIN[3])
+                     collide.NO_CHAIN[3] if self._wrist is None else self._wrist)
             return 0, 1.0, wrist.STEP, table, chain, packed, memo
         return 1, float(kind[1]), 1.0, None, collide.NO_CHAIN, packed, memo
 
