@@ -180,6 +180,31 @@ def test_the_other_arms_hulls_clear_only_what_pybullet_clears(grasp_arm):
     scene = cached.scene(cached.check_instance(cached.sample_instance(60)))
     world = FC.certified(scene.arms[0]).checker.world
     assert len(world.og_r) and not len(world.og_hull) and np.all(world.og_hlo == world.og_hhi)
+    assert not len(world.oin_r) and np.all(world.og_ilo == world.og_ihi)
+
+
+def test_proven_collisions_with_the_other_arm_are_pybullet_collisions(grasp_arm):
+    """An inner sphere of the arm overlapping one of the other arm's by the proof depth is
+    a collision for pybullet (configurations reaching towards the other arm)."""
+    domain = grasp_arm["exact"]
+    rng = np.random.default_rng(14)
+    proved = 0
+    for seed in range(3):
+        scene = domain.scene(domain.check_instance(domain.sample_instance(80 + seed)))
+        arm, other = scene.arms[seed % 2], scene.arms[1 - seed % 2]
+        checker = FC.certified(arm).checker
+        assert len(checker.world.oin_r)
+        toward = np.arctan2(*(other.shoulder - arm.shoulder)[1::-1])
+        Q = np.clip(P.HOME + rng.normal(0, 0.8, (600, 7)), P.LOWER, P.UPPER)
+        Q[:, 0] = np.clip(toward - arm.base_yaw + rng.normal(0, 0.4, 600), P.LOWER[0],
+                          P.UPPER[0])
+        frames = checker.frames(Q)
+        for n, q in enumerate(Q):
+            if checker.robot._hits_robot(frames, n, checker.world):
+                proved += 1
+                assert arm.collides_at(q), (seed, q.tolist())
+        arm.set(P.HOME)
+    assert proved > 50
 
 
 def test_wrist_hulls_clear_only_what_pybullet_clears(grasp_arm):

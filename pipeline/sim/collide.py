@@ -444,10 +444,12 @@ def _check_order(k, m):  # pragma: no cover (compiled)
 
 @njit(cache=True)
 def _proved(kind, fr, in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_solid, box_c,
-            box_R, box_h, box_r, depth):  # pragma: no cover (compiled)
+            box_R, box_h, box_r, depth, og_c, og_r, og_ilo, og_ihi, oin_c,
+            oin_r):  # pragma: no cover (compiled)
     """Does the robot at frames ``fr`` certainly collide: an inner sphere or a robot box
-    at least ``depth`` deep in a world box, or an inner sphere that deep in a robot box it
-    is tested against (:func:`sphere_hit`, :func:`box_hit`, :func:`inner_hit_rbox`)?"""
+    at least ``depth`` deep in a world box, an inner sphere that deep in a robot box it
+    is tested against, or in an inner sphere of another robot (:func:`sphere_hit`,
+    :func:`box_hit`, :func:`inner_hit_rbox`, :func:`inner_hit_spheres`)?"""
     if kind == 2:
         return False
     f4 = fr.reshape((1, fr.shape[0], 3, 4))
@@ -455,13 +457,39 @@ def _proved(kind, fr, in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_so
     if in_rbox.size and inner_hit_rbox(f4, first, in_frame, in_c, in_r, in_rbox, rbox_frame,
                                        rbox_T, rbox_solid, depth):
         return True
-    if box_c.shape[0] == 0:
-        return False
     # the robot's few boxes first: the many inner spheres cost more to place and test
-    return ((rbox_solid.shape[0] > 0 and box_hit(f4, first, rbox_frame, rbox_T, rbox_solid,
+    if box_c.shape[0] > 0 and (
+            (rbox_solid.shape[0] > 0 and box_hit(f4, first, rbox_frame, rbox_T, rbox_solid,
                                                  box_c, box_R, box_h, box_r, depth))
             or (in_r.shape[0] > 0 and sphere_hit(f4, first, in_frame, in_c, in_r, box_c, box_R,
-                                                 box_h, box_r, depth)))
+                                                 box_h, box_r, depth))):
+        return True
+    return oin_r.shape[0] > 0 and inner_hit_spheres(f4, first, in_frame, in_c, in_r, og_c, og_r,
+                                                   og_ilo, og_ihi, oin_c, oin_r, depth)
+
+
+@njit(cache=True)
+def inner_hit_spheres(frames, n, in_frame, in_c, in_r, og_c, og_r, og_ilo, og_ihi, oin_c,
+                      oin_r, depth):  # pragma: no cover (compiled)
+    """Does one of the robot's inner spheres overlap one of another robot's inner spheres
+    (world coordinates ``oin_c``, ``oin_r``; those of group o: og_ilo[o]:og_ihi[o], held
+    by the group's bounding sphere (og_c[o], og_r[o])) by at least ``depth`` at
+    configuration n?  True is a proof of collision: the two link hulls that hold the
+    spheres overlap at least as deep."""
+    p = np.empty(3)
+    for s in range(in_c.shape[0]):
+        _apply(frames[n, in_frame[s]], in_c[s], p)
+        for o in range(og_c.shape[0]):
+            dx, dy, dz = p[0] - og_c[o, 0], p[1] - og_c[o, 1], p[2] - og_c[o, 2]
+            far = in_r[s] + og_r[o]
+            if dx * dx + dy * dy + dz * dz >= far * far:
+                continue
+            for u in range(og_ilo[o], og_ihi[o]):
+                dx, dy, dz = p[0] - oin_c[u, 0], p[1] - oin_c[u, 1], p[2] - oin_c[u, 2]
+                reach = in_r[s] + oin_r[u] - depth
+                if reach > 0.0 and dx * dx + dy * dy + dz * dz < reach * reach:
+                    return True
+    return False
 
 
 # each takes its row of the layout's meta (an array, so numba compiles one specialization,
@@ -499,7 +527,8 @@ WORLD_PACK = (
     ("box_c", "f", 2), ("box_R", "f", 3), ("box_h", "f", 2), ("box_r", "f", 1),
     ("box_e", "f", 2), ("og_c", "f", 2), ("og_r", "f", 1), ("og_lo", "i", 1),
     ("og_hi", "i", 1), ("obs_c", "f", 2), ("obs_r", "f", 1), ("og_hlo", "i", 1),
-    ("og_hhi", "i", 1), ("og_hull", "f", 2))
+    ("og_hhi", "i", 1), ("og_hull", "f", 2), ("og_ilo", "i", 1), ("og_ihi", "i", 1),
+    ("oin_c", "f", 2), ("oin_r", "f", 1))
 
 
 def pack(values: dict, layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -624,10 +653,12 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
     box_e, og_c, og_r = _f2(wf, wm[4]), _f2(wf, wm[5]), _f1(wf, wm[6])
     og_lo, og_hi, obs_c, obs_r = _f1(wi, wm[7]), _f1(wi, wm[8]), _f2(wf, wm[9]), _f1(wf, wm[10])
     og_hlo, og_hhi, og_hull = _f1(wi, wm[11]), _f1(wi, wm[12]), _f2(wf, wm[13])
+    og_ilo, og_ihi, oin_c, oin_r = _f1(wi, wm[14]), _f1(wi, wm[15]), _f2(wf, wm[16]), _f1(
+        wf, wm[17])
     G, S, B = grp_c.shape[0], sph_c.shape[0], box_c.shape[0]
     nil = np.int64(0)  # not the literal 0, which numba would compile _apart for once more
     proof = (in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_solid, box_c, box_R, box_h,
-             box_r, depth)
+             box_r, depth, og_c, og_r, og_ilo, og_ihi, oin_c, oin_r)
     gw, sw = np.empty((G, 3)), np.empty((S, 3))
     world_frame = np.zeros((3, 4))  # of og_hull's vertices (world coordinates)
     for i in range(3):

@@ -123,7 +123,11 @@ class World:
     og_r: np.ndarray | None = None
     og_hull: np.ndarray | None = None  # the convex hull of what group k's spheres cover:
     og_hlo: np.ndarray | None = None  # og_hull[og_hlo[k]:og_hhi[k]] (world coordinates;
-    og_hhi: np.ndarray | None = None  # an empty range: none known)
+    og_hhi: np.ndarray | None = None  # an empty range: none known), and spheres inside
+    oin_c: np.ndarray | None = None  # it: oin_c[og_ilo[k]:og_ihi[k]], oin_r[...]
+    oin_r: np.ndarray | None = None
+    og_ilo: np.ndarray | None = None
+    og_ihi: np.ndarray | None = None
 
     def __post_init__(self):
         self.box_r = np.linalg.norm(self.box_h, axis=1)
@@ -137,17 +141,20 @@ class World:
         if self.og_hull is None:  # no hulls
             self.og_hull = np.zeros((0, 3))
             self.og_hlo = self.og_hhi = np.zeros(len(self.og_lo), dtype=np.int64)
+        if self.oin_c is None:  # no inner spheres
+            self.oin_c, self.oin_r = np.zeros((0, 3)), np.zeros(0)
+            self.og_ilo = self.og_ihi = np.zeros(len(self.og_lo), dtype=np.int64)
 
     @classmethod
     def read(cls, client: int, skip, only=None, hulls: bool = True) -> World | None:
         """Every body of ``client`` but those in ``skip`` (or the bodies ``only``); None
         when one is neither a box nor a Panda.  ``hulls``: with another Panda's link hulls
-        (:data:`og_hull`), which let the scan clear rows without asking pybullet; only
-        where pybullet's answers do not depend on what it was asked before
-        (docs/contacts.md): under cached contacts a check left out could change a later
-        one."""
+        and the spheres inside them (:data:`og_hull`, :data:`oin_c`), which let the scan
+        clear rows and prove collisions without asking pybullet; only where pybullet's
+        answers do not depend on what it was asked before (docs/contacts.md): under
+        cached contacts a check left out could change a later one."""
         boxes, halves, bodies, centres, radii = [], [], [], [np.zeros((0, 3))], [np.zeros(0)]
-        groups, vertices = [], [np.zeros((0, 3))]
+        groups, vertices, inner = [], [np.zeros((0, 3))], [(np.zeros((0, 3)), np.zeros(0))]
         if only is None:
             only = [pb.getBodyUniqueId(i, physicsClientId=client)
                     for i in range(pb.getNumBodies(physicsClientId=client))]
@@ -169,15 +176,19 @@ class World:
                 centres.append(c)
                 radii.append(r)
                 if hulls:
-                    verts, ends = _panda_obstacle_hulls(
+                    verts, ends, ic, ir, iends = _panda_obstacle_solids(
                         tuple(arm_state(client, body)),
                         tuple(base_link_frame(client, body)[:3].ravel()))
-                    at = sum(len(h) for h in vertices)
+                    at, iat = sum(len(h) for h in vertices), sum(len(r) for _, r in inner)
                     vertices.append(verts)
+                    inner.append((ic, ir))
                 else:
-                    at, ends = 0, [(0, 0)] * len(parts)
-                groups[-len(parts):] = [(*g, at + lo, at + hi) for g, (lo, hi) in
-                                        zip(groups[-len(parts):], ends, strict=True)]
+                    at = iat = 0
+                    ends = iends = [(0, 0)] * len(parts)
+                groups[-len(parts):] = [
+                    (*g, at + lo, at + hi, iat + ilo, iat + ihi)
+                    for g, (lo, hi), (ilo, ihi) in zip(groups[-len(parts):], ends, iends,
+                                                       strict=True)]
             else:
                 return None
         R = _matrices(np.array([b[1] for b in boxes]).reshape(-1, 4))
@@ -193,7 +204,10 @@ class World:
                    np.array([g[2] for g in groups]).reshape(-1, 3),
                    np.array([g[3] for g in groups]), np.concatenate(vertices),
                    np.array([g[4] for g in groups], dtype=np.int64),
-                   np.array([g[5] for g in groups], dtype=np.int64))
+                   np.array([g[5] for g in groups], dtype=np.int64),
+                   np.concatenate([c for c, _ in inner]), np.concatenate([r for _, r in inner]),
+                   np.array([g[6] for g in groups], dtype=np.int64),
+                   np.array([g[7] for g in groups], dtype=np.int64))
 
 
     def packed(self) -> tuple:
@@ -203,7 +217,8 @@ class World:
                 box_c=self.box_c, box_R=self.box_R, box_h=self.box_h, box_r=self.box_r,
                 box_e=self.box_e, og_c=self.og_c, og_r=self.og_r, og_lo=self.og_lo,
                 og_hi=self.og_hi, obs_c=self.sph_c, obs_r=self.sph_r, og_hlo=self.og_hlo,
-                og_hhi=self.og_hhi, og_hull=self.og_hull), collide.WORLD_PACK)
+                og_hhi=self.og_hhi, og_hull=self.og_hull, og_ilo=self.og_ilo,
+                og_ihi=self.og_ihi, oin_c=self.oin_c, oin_r=self.oin_r), collide.WORLD_PACK)
         return self._pack
 
     def join(self, other: World) -> World | None:
@@ -214,7 +229,8 @@ class World:
                      np.concatenate([self.box_R, other.box_R]),
                      np.concatenate([self.box_h, other.box_h]), self.sph_c, self.sph_r,
                      self.bodies + other.bodies, self.og_lo, self.og_hi, self.og_c, self.og_r,
-                     self.og_hull, self.og_hlo, self.og_hhi)
+                     self.og_hull, self.og_hlo, self.og_hhi, self.oin_c, self.oin_r,
+                     self.og_ilo, self.og_ihi)
 
 
 class _Memo:
@@ -286,20 +302,28 @@ def _panda_obstacle(q: tuple, base: tuple):
 
 
 @functools.lru_cache(maxsize=16)
-def _panda_obstacle_hulls(q: tuple, base: tuple) -> tuple[np.ndarray, tuple]:
-    """The links' collision hulls (:func:`pipeline.sim.spheres.panda_hulls`) of the Panda
-    of :func:`_panda_obstacle`, in world coordinates: (vertices, per link of
-    ``spheres.LINKS`` the (first, end) of its own)."""
+def _panda_obstacle_solids(q: tuple, base: tuple) -> tuple:
+    """The links' collision hulls (:func:`pipeline.sim.spheres.panda_hulls`) and inner
+    spheres (:func:`pipeline.sim.spheres.panda_inner_spheres`) of the Panda of
+    :func:`_panda_obstacle`, in world coordinates: (hull vertices, per link of
+    ``spheres.LINKS`` the (first, end) of its own, sphere centres, radii, per link the
+    (first, end) of its spheres)."""
     frame = np.vstack([np.reshape(base, (3, 4)), [0.0, 0.0, 0.0, 1.0]])
     frames = _arm_frames_fn(frame)(np.array([q]))[0]
-    hulls = spheres.panda_hulls()
-    verts, ends, at = [], [], 0
+    hulls, model = spheres.panda_hulls(), spheres.panda_inner_spheres()
+    verts, ends, centres, radii, iends = [], [], [], [], []
     for link in spheres.LINKS:
         F = frames[spheres.FRAME_OF_LINK[link]]
+        first = sum(len(v) for v in verts)
         verts.append(hulls[link] @ F[:, :3].T + F[:, 3])
-        ends.append((at, at + len(hulls[link])))
-        at += len(hulls[link])
-    return np.ascontiguousarray(np.concatenate(verts)), tuple(ends)
+        ends.append((first, first + len(verts[-1])))
+        mine = np.flatnonzero(model.links == link)
+        first = sum(len(r) for r in radii)
+        centres.append(model.centres[mine] @ F[:, :3].T + F[:, 3])
+        radii.append(model.radii[mine])
+        iends.append((first, first + len(mine)))
+    return (np.ascontiguousarray(np.concatenate(verts)), tuple(ends),
+            np.ascontiguousarray(np.concatenate(centres)), np.concatenate(radii), tuple(iends))
 
 
 def _bounding(centres: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, float]:
@@ -429,13 +453,20 @@ class SphereRobot:
                 self.rbox_T, self.rbox_solid, PROOF_DEPTH):
             return True
         if not len(world.box_c):
-            return False
+            return self._hits_robot(frames, n, world)
         boxes = (world.box_c, world.box_R, world.box_h, world.box_r, PROOF_DEPTH)
         return bool(
             (len(self.rbox_solid) and collide.box_hit(
                 frames, n, self.rbox_frame, self.rbox_T, self.rbox_solid, *boxes))
             or (len(self.in_r) and collide.sphere_hit(frames, n, self.in_frame, self.in_c,
-                                                      self.in_r, *boxes)))
+                                                      self.in_r, *boxes))
+            or self._hits_robot(frames, n, world))
+
+    def _hits_robot(self, frames: np.ndarray, n: int, world: World) -> bool:
+        """An inner sphere that deep in one of another robot's (:meth:`World.read`)."""
+        return bool(len(world.oin_r) and len(self.in_r) and collide.inner_hit_spheres(
+            frames, n, self.in_frame, self.in_c, self.in_r, world.og_c, world.og_r,
+            world.og_ilo, world.og_ihi, world.oin_c, world.oin_r, PROOF_DEPTH))
 
     def uncertain(self, frames: np.ndarray, world: World, pre: np.ndarray | None = None,
                   wrist_pairs: np.ndarray | None = None) -> np.ndarray:
@@ -1028,6 +1059,9 @@ def compile_kernels() -> None:
     boxes = (world.box_c, world.box_R, world.box_h, world.box_r, PROOF_DEPTH)
     collide.box_hit(frames, 0, robot.rbox_frame, robot.rbox_T, robot.rbox_solid, *boxes)
     collide.sphere_hit(frames, 0, robot.in_frame, robot.in_c, robot.in_r, *boxes)
+    collide.inner_hit_spheres(frames, 0, robot.in_frame, robot.in_c, robot.in_r, world.og_c,
+                              world.og_r, world.og_ilo, world.og_ihi, world.oin_c, world.oin_r,
+                              PROOF_DEPTH)
     collide.planar_frames(np.zeros((1, 3)), 1.0, np.empty((1, 1, 3, 4)))
     collide.wrist_cells(np.zeros((1, 7)), np.zeros(2), wrist.STEP, np.ones((2, 2), np.int8),
                         np.empty(1, dtype=np.bool_))
