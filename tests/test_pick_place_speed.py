@@ -102,7 +102,8 @@ def _edges(rng, lo, hi, count, resolution):
 def _compare(model, exact_model, edges, resolution):
     """The certified model's check_motion against the generic one (interpolate, then check
     row by row) on the exact model: answers, counts and the configurations the exact
-    check saw, bit for bit; and single configurations."""
+    check saw, bit for bit (each path with the checker's memory of exact answers
+    emptied first); and single configurations."""
     checker = model.checker
     original = checker.exact
     rec = _Recorder(original)
@@ -111,9 +112,11 @@ def _compare(model, exact_model, edges, resolution):
     try:
         for a, b, limit in edges:
             rec.asked = []
+            checker._asked.clear()
             fast = model.check_motion(a, b, resolution, limit)
             asked_fast.append(rec.asked)
             rec.asked = []
+            checker._asked.clear()
             generic = Robot.check_motion(model, a, b, resolution, limit)
             asked_generic.append(rec.asked)
             assert fast == generic == Robot.check_motion(exact_model, a, b, resolution, limit)
@@ -391,6 +394,7 @@ def test_a_motion_refuted_by_geometry_is_answered_again_without_pybullet(carryin
             assert not (refuted and rec.asked)
             for limit in (10**6, first[1], max(1, first[1] - 1), 1):
                 rec.asked = []
+                checker._asked.clear()  # pybullet's answers remembered: next test
                 answer = model.check_motion(a, b, 0.04, limit)
                 asked = rec.asked
                 assert answer == Robot.check_motion(scene.base, a, b, 0.04, limit)
@@ -401,6 +405,40 @@ def test_a_motion_refuted_by_geometry_is_answered_again_without_pybullet(carryin
     finally:
         checker.exact = rec.exact
     assert again > 20 and checked_again > 0
+
+
+def test_pybullets_answers_are_remembered_only_under_fresh_contacts(carrying):
+    """Under fresh contacts an exact answer is a function of the configuration: a row
+    asked again gets it from the checker's memory (the same answer and count), and
+    pybullet is not asked again; under cached contacts every row is asked again."""
+    domain, inst, theta, carry = carrying
+    domain.reset(inst)
+    domain.hold(inst, theta.grasp, carry)
+    scene = domain.scene_of()
+    model = FC.certified(scene.base)
+    checker = model.checker
+    rec = _Recorder(checker.exact)
+    checker.exact = rec
+    remembered = 0
+    try:
+        for a, b, _ in _edges(np.random.default_rng(6), scene.base.lower, scene.base.upper,
+                              80, 0.04):
+            first = model.check_motion(a, b, 0.04, 10**6)
+            rec.asked = []
+            before = checker.stats["remembered"]
+            assert model.check_motion(a, b, 0.04, 10**6) == first
+            assert not rec.asked
+            remembered += checker.stats["remembered"] - before
+    finally:
+        checker.exact = rec.exact
+    assert remembered > 0
+    cached = load_domain("pick_place", contacts="cached")
+    try:
+        cached.scene(cached.check_instance(cached.sample_instance(1)))
+        assert FC.certified(cached.scene_of().base).checker._asked is None
+        assert FC.certified(cached.scene_of().arm).checker._asked is None
+    finally:
+        cached.close()
 
 
 def test_a_configuration_settled_by_geometry_is_answered_again_without_pybullet(carrying):

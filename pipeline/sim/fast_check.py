@@ -608,15 +608,21 @@ class SphereChecker:
 
     ``frames(states)`` gives the robot's frames per row; ``exact(row)`` is the exact
     check of one row (True: collides); ``certified`` False sends every row to ``exact``.
+    ``remember``: the exact check's answer is a function of the row (fresh contacts,
+    docs/contacts.md), so a row asked again is answered from memory (OMPL checks the start
+    and goal the planning call checked already).
     """
 
     def __init__(self, robot: SphereRobot | None, world: World | None, frames: Callable,
                  exact: Callable[[np.ndarray], bool], certified: bool = True,
-                 also: Callable[[np.ndarray], np.ndarray] | None = None, motion=None):
+                 also: Callable[[np.ndarray], np.ndarray] | None = None, motion=None,
+                 remember: bool = False):
         self.robot, self.world, self.frames, self.exact = robot, world, frames, exact
         self.certified = certified and robot is not None and world is not None
         self.also = also  # more rows to send to ``exact`` (say, the wrist table's)
-        self.stats = {"rows": 0, "exact": 0, "proved": 0}
+        self.stats = {"rows": 0, "exact": 0, "proved": 0, "remembered": 0}
+        #: the exact answers by row (``remember``), or None
+        self._asked: dict[bytes, bool] | None = {} if remember else None
         #: how :meth:`motion` makes a motion's frames without making its states:
         #: ("arm", base link frame 3 × 4, chain origins, wrist table, whether the exact
         #: check confirms contacts afresh) or ("base", psi_scale)
@@ -665,8 +671,7 @@ class SphereChecker:
             if self.robot.surely_hits(frames, k, self.world):
                 self.stats["proved"] += 1
                 return False, k + 1
-            self.stats["exact"] += 1
-            if self.exact(states[k]):
+            if self._ask(states[k]):
                 return False, k + 1
             k = self.robot.first(frames, self.world, k + 1, pre, self._wrist)
         return True, n
@@ -710,9 +715,8 @@ class SphereChecker:
                 if self.stats["exact"] == exact_before:
                     self._refuted[key] = k + 1
                 return False, k + 1
-            self.stats["exact"] += 1
             # the state as interpolate makes it: a + t (b - a), t = (row + 1) / steps
-            if self.exact(a + (int(check_order(steps)[k]) + 1) / steps * (b - a)):
+            if self._ask(a + (int(check_order(steps)[k]) + 1) / steps * (b - a)):
                 return False, k + 1
             steps, k, proved = collide.edge_first(a, b, resolution, limit, k + 1, kind, psi,
                                                   step, cells, chain, packed, memo)
@@ -757,8 +761,22 @@ class SphereChecker:
             self.stats["proved"] += 1
             self._settled[key] = False
             return False, 1
-        self.stats["exact"] += 1
-        return (False, 1) if self.exact(state) else (True, 1)
+        return (False, 1) if self._ask(state) else (True, 1)
+
+    def _ask(self, q: np.ndarray) -> bool:
+        """The exact check of row q (True: collides), counted, or its answer from memory
+        (``remember``)."""
+        if self._asked is None:
+            self.stats["exact"] += 1
+            return bool(self.exact(q))
+        key = np.ascontiguousarray(q, dtype=float).tobytes()
+        answer = self._asked.get(key)
+        if answer is None:
+            self.stats["exact"] += 1
+            answer = self._asked[key] = bool(self.exact(q))
+        else:
+            self.stats["remembered"] += 1
+        return answer
 
     def _motion_args(self) -> tuple:
         """(kind, psi_scale, wrist grid step, wrist table, chain, packed arrays, memo) of
@@ -881,7 +899,8 @@ def arm_checker(client: int, arm_body: int, ignored_pairs, exact, *, held=None,
              fresh_contacts), apart)
     table = wrist_table(ignored_pairs)
     return SphereChecker(robot, world, frames, exact, certified, also=table.uncertain,
-                         motion=("arm", frames.base34, frames.origins, table, fresh_contacts))
+                         motion=("arm", frames.base34, frames.origins, table, fresh_contacts),
+                         remember=fresh_contacts)
 
 
 def _wrist_groups(pairs: tuple) -> np.ndarray:
@@ -894,7 +913,7 @@ def _wrist_groups(pairs: tuple) -> np.ndarray:
 
 def base_checker(client: int, arm_body: int, platform: int, base_pose: np.ndarray,
                  psi_scale: float, exact, internal_free: bool, *, held=None,
-                 held_key=None, world_key=None) -> SphereChecker:
+                 held_key=None, world_key=None, fresh_contacts: bool = False) -> SphereChecker:
     """Checker for base motions (x, y, psi_scale · ψ) of a mobile arm, arm fixed.
 
     ``base_pose`` is the base's current 4 × 4 transform (its frame: on the floor under the
@@ -907,6 +926,8 @@ def base_checker(client: int, arm_body: int, platform: int, base_pose: np.ndarra
     kinematics give only to about 1e-7 m, a little differently at every base pose (so
     every planning call would build the model again; the margins of :data:`GAPS` are
     three orders above that).  ``world_key``: see :func:`read_world`.
+    ``fresh_contacts``: the exact check confirms each cached penetration afresh (its
+    answers are remembered, :class:`SphereChecker`).
     """
     if not internal_free:
         return SphereChecker(None, None, None, exact, certified=False)
@@ -925,7 +946,8 @@ def base_checker(client: int, arm_body: int, platform: int, base_pose: np.ndarra
         out = np.empty((len(states), 1, 3, 4))
         collide.planar_frames(states, psi_scale, out)
         return out
-    return SphereChecker(robot, world, base_frames, exact, motion=("base", psi_scale))
+    return SphereChecker(robot, world, base_frames, exact, motion=("base", psi_scale),
+                         remember=fresh_contacts)
 
 
 @functools.lru_cache(maxsize=1)
@@ -1104,7 +1126,7 @@ def certified_mobile_base(model) -> CertifiedRobot:
         r.client, r.body, r.platform, r.base_frame(), model.psi_scale, model.collides,
         _internal_free(r), held=_held(r, hand=False),
         held_key=None if r.held is None else ("in hand", _key_of(r.held_in_tcp)),
-        world_key=_world_key(r)))
+        world_key=_world_key(r), fresh_contacts=r.fresh_contacts))
 
 
 def _shape_key(client: int, body: int) -> tuple:
