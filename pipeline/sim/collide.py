@@ -528,7 +528,7 @@ WORLD_PACK = (
     ("box_e", "f", 2), ("og_c", "f", 2), ("og_r", "f", 1), ("og_lo", "i", 1),
     ("og_hi", "i", 1), ("obs_c", "f", 2), ("obs_r", "f", 1), ("og_hlo", "i", 1),
     ("og_hhi", "i", 1), ("og_hull", "f", 2), ("og_ilo", "i", 1), ("og_ihi", "i", 1),
-    ("oin_c", "f", 2), ("oin_r", "f", 1))
+    ("oin_c", "f", 2), ("oin_r", "f", 1), ("og_all", "f", 1))
 
 
 def pack(values: dict, layout) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -655,6 +655,7 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
     og_hlo, og_hhi, og_hull = _f1(wi, wm[11]), _f1(wi, wm[12]), _f2(wf, wm[13])
     og_ilo, og_ihi, oin_c, oin_r = _f1(wi, wm[14]), _f1(wi, wm[15]), _f2(wf, wm[16]), _f1(
         wf, wm[17])
+    og_all = _f1(wf, wm[18])  # a sphere (centre, radius) holding every group's sphere
     G, S, B = grp_c.shape[0], sph_c.shape[0], box_c.shape[0]
     nil = np.int64(0)  # not the literal 0, which numba would compile _apart for once more
     proof = (in_frame, in_c, in_r, in_rbox, rbox_frame, rbox_T, rbox_solid, box_c, box_R, box_h,
@@ -792,7 +793,9 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
                                 box_R[m], box_h[m], gaps[0]):
                             break
                         return steps, pos, _proved(kind, fr, *proof)
-            for o in range(og_c.shape[0]):
+            dx, dy, dz = x - og_all[0], y - og_all[1], z - og_all[2]
+            reach = rg + og_all[3]
+            for o in range(og_c.shape[0] if dx * dx + dy * dy + dz * dz < reach * reach else 0):
                 dx, dy, dz = x - og_c[o, 0], y - og_c[o, 1], z - og_c[o, 2]
                 reach = rg + og_r[o]
                 if dx * dx + dy * dy + dz * dz >= reach * reach:

@@ -144,6 +144,11 @@ class World:
         if self.oin_c is None:  # no inner spheres
             self.oin_c, self.oin_r = np.zeros((0, 3)), np.zeros(0)
             self.og_ilo = self.og_ihi = np.zeros(len(self.og_lo), dtype=np.int64)
+        # one sphere holding every group's (a first test for them all; none: radius -inf)
+        self.og_all = np.array([0.0, 0.0, 0.0, -np.inf])
+        if len(self.og_r):
+            centre, radius = _bounding(self.og_c, self.og_r)
+            self.og_all = np.array([*centre, radius])
 
     @classmethod
     def read(cls, client: int, skip, only=None, hulls: bool = True) -> World | None:
@@ -218,7 +223,8 @@ class World:
                 box_e=self.box_e, og_c=self.og_c, og_r=self.og_r, og_lo=self.og_lo,
                 og_hi=self.og_hi, obs_c=self.sph_c, obs_r=self.sph_r, og_hlo=self.og_hlo,
                 og_hhi=self.og_hhi, og_hull=self.og_hull, og_ilo=self.og_ilo,
-                og_ihi=self.og_ihi, oin_c=self.oin_c, oin_r=self.oin_r), collide.WORLD_PACK)
+                og_ihi=self.og_ihi, oin_c=self.oin_c, oin_r=self.oin_r, og_all=self.og_all),
+                collide.WORLD_PACK)
         return self._pack
 
     def join(self, other: World) -> World | None:
