@@ -13,6 +13,8 @@ length).
 
 from __future__ import annotations
 
+import functools
+import itertools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -102,6 +104,10 @@ class GraspArmInstance:
     obstacles: tuple[Box, ...]
 
 
+#: a number per scene made in this process (part of its world keys)
+_SCENES = itertools.count()
+
+
 class GraspArmScene:
     """One pybullet client with the furniture, both arms at home and an instance's boxes."""
 
@@ -116,6 +122,9 @@ class GraspArmScene:
         self.target_id = None
         #: how many times an instance was loaded (a paused try checks it was not replaced)
         self.loads = 0
+        self._number = next(_SCENES)
+        for arm in self.arms:
+            arm.world_key = functools.partial(self.world_key, arm)
         if instance is not None:
             self.load(instance)
 
@@ -134,6 +143,14 @@ class GraspArmScene:
             arm.set(P.HOME)
         self.instance = instance
         self.loads += 1
+
+    def world_key(self, arm: P.Panda) -> tuple:
+        """A key that stays the same only while everything but ``arm`` does (the sphere
+        pre-check reads the world once per key): this scene, the instance loaded and the
+        other arms' joints."""
+        others = [s[0] for o in self.arms if o is not arm for s in pb.getJointStates(
+            o.body, range(7), physicsClientId=self.client_id)]
+        return ("grasp_arm", self._number, self.loads, np.round(others, 9).tobytes())
 
     def set_configuration(self, q, arm: int = 0) -> None:
         self.arms[arm].set(q)

@@ -1109,7 +1109,7 @@ def certified_panda(model) -> CertifiedRobot:
     """A fixed Panda's (:class:`pipeline.sim.panda.Panda`) sphere-certified model."""
     compile_kernels()
     return CertifiedRobot(model, arm_checker(model.client, model.body, model.ignored_pairs,
-                                             model.collides_at,
+                                             model.collides_at, world_key=_world_key(model),
                                              fresh_contacts=model.fresh_contacts))
 
 

@@ -47,6 +47,9 @@ class Panda(Robot):
 
     description = "a fixed Panda arm"
     lower, upper = LOWER, UPPER
+    #: None, or a function a scene sets: a key that is the same only while everything that
+    #: is not this arm is the same (the sphere pre-check reads the world once per key)
+    world_key = None
 
     def __init__(self, client: int, base_position, *, finger_opening: float = 0.04,
                  contacts: str = "cached"):
