@@ -207,6 +207,29 @@ def test_proven_collisions_with_the_other_arm_are_pybullet_collisions(grasp_arm)
     assert proved > 50
 
 
+def test_ik_checks_its_solutions_as_pybullet_does(grasp_arm):
+    """grasp_arm's IK checks a solution on the planner's model under the sphere pre-check
+    and fresh contacts (the same answers as pybullet's), and with pybullet itself under
+    planner.collision=exact or cached contacts."""
+    domain = grasp_arm["spheres"]
+    scene = domain.scene(domain.check_instance(domain.sample_instance(5)))
+    arm = scene.arms[1]
+    collides = domain.ik_collides(arm)
+    assert collides is not None
+    rng = np.random.default_rng(15)
+    Q = np.concatenate([rng.uniform(P.LOWER, P.UPPER, (150, 7)),
+                        np.clip(P.HOME + rng.normal(0, 0.7, (150, 7)), P.LOWER, P.UPPER)])
+    answers = [collides(q) for q in Q]
+    assert answers == [arm.collides_at(q) for q in Q] and 0 < sum(answers) < len(Q)
+    arm.set(P.HOME)
+    exact = grasp_arm["exact"]
+    assert exact.ik_collides(exact.scene(exact.check_instance(
+        exact.sample_instance(5))).arms[1]) is None
+    cached = _domain("grasp_arm", "spheres", contacts="cached")
+    assert cached.ik_collides(cached.scene(cached.check_instance(
+        cached.sample_instance(5))).arms[1]) is None
+
+
 def test_wrist_hulls_clear_only_what_pybullet_clears(grasp_arm):
     """Where the wrist table may hold a contact, the wrist pairs' spheres and hulls decide
     as for the other link pairs: every configuration they clear is free for pybullet,

@@ -284,6 +284,21 @@ class GraspArmDomain(Domain):
                 return RawSearch(plan, g.features, tries, checks)
         return RawSearch(plan, None, tries, checks)
 
+    def ik_collides(self, arm: P.Panda):
+        """IK's check of a solution: the planner's (under ``planner.collision=spheres`` the
+        sphere pre-check, pybullet's answers) where pybullet's answers are a function of the
+        configuration (fresh contacts); None (pybullet's own) where a check left out could
+        change a later answer (cached contacts, docs/contacts.md)."""
+        if not arm.fresh_contacts or self.planner.collision != "spheres":
+            return None
+        model = []  # made when IK first has a solution to check
+
+        def collides(q) -> bool:
+            if not model:
+                model.append(self.motion.check_model(arm))
+            return not model[0].check(np.asarray(q, float)[None])[0]
+        return collides
+
     def check_limit(self) -> int:
         """The arm path's budget and a check per IK solution tried."""
         return self.planner.max_checks + self.config.ik_restarts
@@ -348,7 +363,8 @@ class GraspArmTry(EntryTry):
         d = self.domain
         if self.search is None:
             pos, orn = d.pregrasp_pose(self.inst, self.g)
-            ik = solve_ik(arm, pos, orn, [self.seed, 7], d.config.ik_restarts, d.config.ik)
+            ik = solve_ik(arm, pos, orn, [self.seed, 7], d.config.ik_restarts, d.config.ik,
+                          d.ik_collides(arm))
             if not ik.found:
                 return PlanResult(ik.status, checks=ik.checks, step="ik")
             self.ik_checks = ik.checks

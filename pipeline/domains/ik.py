@@ -29,7 +29,7 @@ METHODS = IK_METHODS
 
 
 def solve_ik(arm, position, orientation, rng_seed, restarts: int,
-             method: str = "damped") -> IKOutcome:
+             method: str = "damped", collides=None) -> IKOutcome:
     """A collision-free configuration of ``arm`` (anything with ``shoulder``, ``joint2``,
     ``ik`` and ``analytic_ik``: a Panda, a MobilePanda) with its TCP at
     ``position``/``orientation``.
@@ -44,16 +44,19 @@ def solve_ik(arm, position, orientation, rng_seed, restarts: int,
     cannot be brought near enough to the shoulder for any configuration to reach the pose
     within IK's tolerances (:func:`pipeline.sim.panda.wrist_out_of_reach`: the outcome
     every IK would end with, found without running it).  Otherwise NO_IK when no restart
-    reached the pose, GOAL_IN_COLLISION when every one that did collides.
+    reached the pose, GOAL_IN_COLLISION when every one that did collides.  ``collides(q)``:
+    the collision check of a solution (None: the arm's own, pybullet's).
     """
     if np.linalg.norm(np.asarray(position) - arm.shoulder) > REACH:
         return IKOutcome(None, 0, Status.NO_IK)
     if wrist_out_of_reach(arm.joint2, position, orientation):
         return IKOutcome(None, 0, Status.NO_IK)
+    check = {} if collides is None else {"collides": collides}
     if method == "damped":
-        q, checks, reached = arm.ik(position, orientation, ik_starts(rng_seed, restarts))
+        q, checks, reached = arm.ik(position, orientation, ik_starts(rng_seed, restarts),
+                                    **check)
     elif method == "analytic":
-        q, checks, reached = arm.analytic_ik(position, orientation, restarts)
+        q, checks, reached = arm.analytic_ik(position, orientation, restarts, **check)
     else:
         raise ValueError(f"IK method must be one of {', '.join(METHODS)}, got {method!r}")
     if q is not None:

@@ -50,6 +50,7 @@ class Panda(Robot):
     #: None, or a function a scene sets: a key that is the same only while everything that
     #: is not this arm is the same (the sphere pre-check reads the world once per key)
     world_key = None
+    _certified: tuple | None = None  # (world key, certified model)
 
     def __init__(self, client: int, base_position, *, finger_opening: float = 0.04,
                  contacts: str = "cached"):
@@ -144,10 +145,16 @@ class Panda(Robot):
         return lambda q: self.distances(q, bodies, query)
 
     def certified(self):
-        """This arm with sphere-certified checks (the ``certified`` capability)."""
+        """This arm with sphere-certified checks (the ``certified`` capability); the same
+        model while the scene's :attr:`world_key` is (it remembers what it settled)."""
         from pipeline.sim.fast_check import certified_panda
 
-        return certified_panda(self)
+        key = self.world_key() if callable(self.world_key) else None
+        if key is None:
+            return certified_panda(self)
+        if self._certified is None or self._certified[0] != key:
+            self._certified = (key, certified_panda(self))
+        return self._certified[1]
 
     def bounded_distance_model(self, query: float):
         """:meth:`distance_model` asking pybullet only about bodies that may be within
