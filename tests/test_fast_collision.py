@@ -144,6 +144,15 @@ def test_every_pybullet_contact_is_flagged_by_the_pre_check(grasp_arm):
     assert contacts > 50
 
 
+def _toward(rng, arm, other, n: int) -> np.ndarray:
+    """n configurations of ``arm`` around home, its first joint turned towards ``other``
+    (the other arm's side of the table)."""
+    toward = np.arctan2(*(other.shoulder - arm.shoulder)[1::-1])
+    Q = np.clip(P.HOME + rng.normal(0, 0.8, (n, 7)), P.LOWER, P.UPPER)
+    Q[:, 0] = np.clip(toward - arm.base_yaw + rng.normal(0, 0.4, n), P.LOWER[0], P.UPPER[0])
+    return Q
+
+
 def test_the_other_arms_hulls_clear_only_what_pybullet_clears(grasp_arm):
     """Where the arm's spheres touch the other arm's, the two links' collision hulls
     decide (at least both margins apart: clear): every configuration they clear is free
@@ -160,11 +169,7 @@ def test_the_other_arms_hulls_clear_only_what_pybullet_clears(grasp_arm):
         world = checker.world
         assert len(world.og_hull) and np.all(world.og_hlo < world.og_hhi)
         spheres_only = dataclasses.replace(world, og_hull=None, og_hlo=None, og_hhi=None)
-        # configurations reaching towards the other arm: its side of the table
-        toward = np.arctan2(*(other.shoulder - arm.shoulder)[1::-1])
-        Q = np.clip(P.HOME + rng.normal(0, 0.8, (1000, 7)), P.LOWER, P.UPPER)
-        Q[:, 0] = np.clip(toward - arm.base_yaw + rng.normal(0, 0.4, 1000), P.LOWER[0],
-                          P.UPPER[0])
+        Q = _toward(rng, arm, other, 1000)
         frames, wrist = checker.frames(Q), checker._pre(Q)  # the wrist table's doubts
         before = checker.robot.uncertain(frames, spheres_only, wrist)
         after = checker.robot.uncertain(frames, world, wrist)
@@ -194,10 +199,7 @@ def test_proven_collisions_with_the_other_arm_are_pybullet_collisions(grasp_arm)
         arm, other = scene.arms[seed % 2], scene.arms[1 - seed % 2]
         checker = FC.certified(arm).checker
         assert len(checker.world.oin_r)
-        toward = np.arctan2(*(other.shoulder - arm.shoulder)[1::-1])
-        Q = np.clip(P.HOME + rng.normal(0, 0.8, (600, 7)), P.LOWER, P.UPPER)
-        Q[:, 0] = np.clip(toward - arm.base_yaw + rng.normal(0, 0.4, 600), P.LOWER[0],
-                          P.UPPER[0])
+        Q = _toward(rng, arm, other, 600)
         frames = checker.frames(Q)
         for n, q in enumerate(Q):
             if checker.robot._hits_robot(frames, n, checker.world):

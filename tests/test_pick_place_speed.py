@@ -372,18 +372,24 @@ def test_a_base_edge_looks_at_every_box_its_root_sphere_reaches(carrying):
     assert left_out > 0
 
 
-def test_a_motion_refuted_by_geometry_is_answered_again_without_pybullet(carrying):
-    """Asked again (shortcutting redraws blocked pairs), with the same or a smaller limit,
-    a motion that geometry alone refuted gets the generic check's answer and count, and
-    pybullet is not asked; motions pybullet decided are checked again."""
+def _recorded_base(carrying):
+    """(scene, certified base model, its checker, the recorder now its exact check) with
+    the rod held in carry."""
     domain, inst, theta, carry = carrying
     domain.reset(inst)
     domain.hold(inst, theta.grasp, carry)
     scene = domain.scene_of()
     model = FC.certified(scene.base)
-    checker = model.checker
-    rec = _Recorder(checker.exact)
-    checker.exact = rec
+    rec = _Recorder(model.checker.exact)
+    model.checker.exact = rec
+    return scene, model, model.checker, rec
+
+
+def test_a_motion_refuted_by_geometry_is_answered_again_without_pybullet(carrying):
+    """Asked again (shortcutting redraws blocked pairs), with the same or a smaller limit,
+    a motion that geometry alone refuted gets the generic check's answer and count, and
+    pybullet is not asked; motions pybullet decided are checked again."""
+    scene, model, checker, rec = _recorded_base(carrying)
     again = checked_again = 0
     try:
         for a, b, _ in _edges(np.random.default_rng(6), scene.base.lower, scene.base.upper,
@@ -411,14 +417,7 @@ def test_pybullets_answers_are_remembered_only_under_fresh_contacts(carrying):
     """Under fresh contacts an exact answer is a function of the configuration: a row
     asked again gets it from the checker's memory (the same answer and count), and
     pybullet is not asked again; under cached contacts every row is asked again."""
-    domain, inst, theta, carry = carrying
-    domain.reset(inst)
-    domain.hold(inst, theta.grasp, carry)
-    scene = domain.scene_of()
-    model = FC.certified(scene.base)
-    checker = model.checker
-    rec = _Recorder(checker.exact)
-    checker.exact = rec
+    scene, model, checker, rec = _recorded_base(carrying)
     remembered = 0
     try:
         for a, b, _ in _edges(np.random.default_rng(6), scene.base.lower, scene.base.upper,

@@ -570,6 +570,18 @@ def _memo_views(memo_i, G, R, B):  # pragma: no cover (compiled)
 
 
 @njit(cache=True)
+def _touch(ac, ar, alo, ahi, bc, br, blo, bhi):  # pragma: no cover (compiled)
+    """Does one of the spheres (ac, ar)[alo:ahi] touch one of (bc, br)[blo:bhi]?"""
+    for s in range(alo, ahi):
+        for u in range(blo, bhi):
+            dx, dy, dz = ac[s, 0] - bc[u, 0], ac[s, 1] - bc[u, 1], ac[s, 2] - bc[u, 2]
+            reach = ar[s] + br[u]
+            if dx * dx + dy * dy + dz * dz < reach * reach:
+                return True
+    return False
+
+
+@njit(cache=True)
 def _wrist_apart(fr, wrist_pairs, grp_frame, grp_c, grp_r, grp_lo, grp_hi, sph_c, sph_r, hull,
                  grp_hlo, grp_hhi, sw, c, R, gap):  # pragma: no cover (compiled)
     """Is every pair of groups in ``wrist_pairs`` (P, 2) at frames ``fr`` certainly apart,
@@ -583,17 +595,8 @@ def _wrist_apart(fr, wrist_pairs, grp_frame, grp_c, grp_r, grp_lo, grp_hi, sph_c
             _apply(Fa, sph_c[s], sw[s])
         for s in range(grp_lo[b], grp_hi[b]):
             _apply(Fb, sph_c[s], sw[s])
-        touch = False
-        for s in range(grp_lo[a], grp_hi[a]):
-            for u in range(grp_lo[b], grp_hi[b]):
-                dx, dy, dz = sw[s, 0] - sw[u, 0], sw[s, 1] - sw[u, 1], sw[s, 2] - sw[u, 2]
-                reach = sph_r[s] + sph_r[u]
-                if dx * dx + dy * dy + dz * dz < reach * reach:
-                    touch = True
-                    break
-            if touch:
-                break
-        if touch and not (grp_hlo[a] < grp_hhi[a] and grp_hlo[b] < grp_hhi[b] and _apart(
+        if _touch(sw, sph_r, grp_lo[a], grp_hi[a], sw, sph_r, grp_lo[b], grp_hi[b]) and not (
+                grp_hlo[a] < grp_hhi[a] and grp_hlo[b] < grp_hhi[b] and _apart(
                 Fa, hull, grp_hlo[a], grp_hhi[a], Fb, hull, grp_hlo[b], grp_hhi[b], c, R, c,
                 gap)):
             return False
@@ -804,18 +807,8 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
                     for s in range(grp_lo[g], grp_hi[g]):
                         _apply(F, sph_c[s], sw[s])
                     done[g] = True
-                touch = False
-                for s in range(grp_lo[g], grp_hi[g]):
-                    for u in range(og_lo[o], og_hi[o]):
-                        dx = sw[s, 0] - obs_c[u, 0]
-                        dy = sw[s, 1] - obs_c[u, 1]
-                        dz = sw[s, 2] - obs_c[u, 2]
-                        reach = sph_r[s] + obs_r[u]
-                        if dx * dx + dy * dy + dz * dz < reach * reach:
-                            touch = True
-                            break
-                    if touch:
-                        break
+                touch = _touch(sw, sph_r, grp_lo[g], grp_hi[g], obs_c, obs_r, og_lo[o],
+                               og_hi[o])
                 if touch and not (grp_hlo[g] < grp_hhi[g] and og_hlo[o] < og_hhi[o] and _apart(
                         F, hull, grp_hlo[g], grp_hhi[g], world_frame, og_hull, og_hlo[o],
                         og_hhi[o], cw, Rw, cw, gaps[2])):
