@@ -107,18 +107,22 @@ def test_proven_arm_collisions_are_pybullet_collisions(grasp_arm):
     domain = grasp_arm["exact"]
     rng = np.random.default_rng(9)
     proved = 0
-    for seed in range(6):
-        scene = domain.scene(domain.check_instance(domain.sample_instance(40 + seed)))
-        arm = scene.arms[seed % 2]
-        checker = FC.certified(arm).checker
-        Q = rng.uniform(P.LOWER, P.UPPER, (250, 7))
-        frames = checker.frames(Q)
-        for n, q in enumerate(Q):
-            if checker.robot.surely_hits(frames, n, checker.world):
-                proved += 1
-                assert arm.collides_at(q), (seed, q.tolist())
-        arm.set(P.HOME)
+    for arm, _, checker in _arms(domain, 40, 6):
+        proved += _proven_collisions(arm, checker, rng.uniform(P.LOWER, P.UPPER, (250, 7)),
+                                     lambda f, n, c=checker: c.robot.surely_hits(f, n, c.world))
     assert proved > 100
+
+
+def _proven_collisions(arm, checker, Q, proof) -> int:
+    """How many rows of Q ``proof(frames, n)`` proves colliding, each one asserted a
+    pybullet collision."""
+    frames, proved = checker.frames(Q), 0
+    for n, q in enumerate(Q):
+        if proof(frames, n):
+            proved += 1
+            assert arm.collides_at(q), q.tolist()
+    arm.set(P.HOME)
+    return proved
 
 
 def test_every_pybullet_contact_is_flagged_by_the_pre_check(grasp_arm):
@@ -144,6 +148,15 @@ def test_every_pybullet_contact_is_flagged_by_the_pre_check(grasp_arm):
     assert contacts > 50
 
 
+def _arms(domain, first: int, count: int):
+    """(an arm, the other arm, the arm's sphere checker) on ``count`` instances from seed
+    ``first``, the arms taking turns."""
+    for seed in range(count):
+        scene = domain.scene(domain.check_instance(domain.sample_instance(first + seed)))
+        arm = scene.arms[seed % 2]
+        yield arm, scene.arms[1 - seed % 2], FC.certified(arm).checker
+
+
 def _toward(rng, arm, other, n: int) -> np.ndarray:
     """n configurations of ``arm`` around home, its first joint turned towards ``other``
     (the other arm's side of the table)."""
@@ -162,10 +175,7 @@ def test_the_other_arms_hulls_clear_only_what_pybullet_clears(grasp_arm):
     domain = grasp_arm["exact"]
     rng = np.random.default_rng(12)
     cleared = 0
-    for seed in range(4):
-        scene = domain.scene(domain.check_instance(domain.sample_instance(60 + seed)))
-        arm, other = scene.arms[seed % 2], scene.arms[1 - seed % 2]
-        checker = FC.certified(arm).checker
+    for arm, other, checker in _arms(domain, 60, 4):
         world = checker.world
         assert len(world.og_hull) and np.all(world.og_hlo < world.og_hhi)
         spheres_only = dataclasses.replace(world, og_hull=None, og_hlo=None, og_hhi=None)
@@ -175,7 +185,7 @@ def test_the_other_arms_hulls_clear_only_what_pybullet_clears(grasp_arm):
         after = checker.robot.uncertain(frames, world, wrist)
         assert not np.any(after & ~before)  # the hulls only ever clear
         for q in Q[before & ~after]:
-            assert not arm.collides_at(q), (seed, q.tolist())
+            assert not arm.collides_at(q), q.tolist()
             cleared += 1
         arm.set(P.HOME)
     assert cleared > 50
@@ -194,18 +204,10 @@ def test_proven_collisions_with_the_other_arm_are_pybullet_collisions(grasp_arm)
     domain = grasp_arm["exact"]
     rng = np.random.default_rng(14)
     proved = 0
-    for seed in range(3):
-        scene = domain.scene(domain.check_instance(domain.sample_instance(80 + seed)))
-        arm, other = scene.arms[seed % 2], scene.arms[1 - seed % 2]
-        checker = FC.certified(arm).checker
+    for arm, other, checker in _arms(domain, 80, 3):
         assert len(checker.world.oin_r)
-        Q = _toward(rng, arm, other, 600)
-        frames = checker.frames(Q)
-        for n, q in enumerate(Q):
-            if checker.robot._hits_robot(frames, n, checker.world):
-                proved += 1
-                assert arm.collides_at(q), (seed, q.tolist())
-        arm.set(P.HOME)
+        proved += _proven_collisions(arm, checker, _toward(rng, arm, other, 600),
+                                     lambda f, n, c=checker: c.robot._hits_robot(f, n, c.world))
     assert proved > 50
 
 
@@ -241,10 +243,7 @@ def test_wrist_hulls_clear_only_what_pybullet_clears(grasp_arm):
     domain = grasp_arm["exact"]
     rng = np.random.default_rng(21)
     cleared = 0
-    for seed in range(3):
-        scene = domain.scene(domain.check_instance(domain.sample_instance(70 + seed)))
-        arm = scene.arms[seed % 2]
-        checker = FC.certified(arm).checker
+    for arm, _, checker in _arms(domain, 70, 3):
         kind, psi, step, table, chain, packed, memo = checker._motion_args()
         assert len(chain[3])  # fresh contacts: the wrist pairs are given to the scan
         table_only = (*chain[:3], collide.NO_CHAIN[3])
@@ -259,7 +258,7 @@ def test_wrist_hulls_clear_only_what_pybullet_clears(grasp_arm):
                              for ch in (table_only, chain))
             assert after or not before  # the hulls only ever clear
             if after and not before:
-                assert not arm.collides_at(q), (seed, q.tolist())
+                assert not arm.collides_at(q), q.tolist()
                 cleared += 1
         arm.set(P.HOME)
     assert cleared > 50
