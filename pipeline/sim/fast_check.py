@@ -630,16 +630,17 @@ class SphereChecker:
         #: the exact answers by row (``remember``), or None
         self._asked: dict[bytes, bool] | None = {} if remember else None
         #: how :meth:`motion` makes a motion's frames without making its states:
-        #: ("arm", base link frame 3 × 4, chain origins, wrist table, whether the exact
-        #: check confirms contacts afresh) or ("base", psi_scale)
+        #: ("arm", base link frame 3 × 4, chain origins, wrist table) or ("base", psi_scale)
         self._motion = motion if self.certified else None
         #: the groups of the wrist pairs whose hulls may clear a row the wrist table (then
-        #: ``also``) doubts, or None: only under fresh contacts (:func:`_wrist_groups`)
-        self._wrist = (_wrist_groups(motion[3].pairs) if self._motion is not None
-                       and motion[0] == "arm" and motion[4] else None)
+        #: ``also``) doubts, or None: only under fresh contacts, as ``remember``
+        #: (:func:`_wrist_groups`)
+        self._wrist = (_wrist_groups(motion[3].pairs) if remember and self._motion is not None
+                       and motion[0] == "arm" else None)
         self._args = None
-        #: motions (a, b, resolution) refuted by geometry alone: the first row in check
-        #: order that is not cleared is a proven collision (``motion``'s rows)
+        #: motions (a, b, resolution) refuted without asking pybullet (geometry, or its
+        #: answers remembered under ``remember``): the first row in check order that is
+        #: not cleared is a proven collision (``motion``'s rows)
         self._refuted: dict[tuple, int] = {}
         #: single configurations decided by geometry alone (cleared, or a proven
         #: collision): asked again (about one in six in pick_place), the same answer
@@ -905,7 +906,7 @@ def arm_checker(client: int, arm_body: int, ignored_pairs, exact, *, held=None,
              fresh_contacts), apart)
     table = wrist_table(ignored_pairs)
     return SphereChecker(robot, world, frames, exact, certified, also=table.uncertain,
-                         motion=("arm", frames.base34, frames.origins, table, fresh_contacts),
+                         motion=("arm", frames.base34, frames.origins, table),
                          remember=fresh_contacts)
 
 
