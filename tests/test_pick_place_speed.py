@@ -6,6 +6,7 @@ worlds and robots, and the shortcutter's random pairs.  Behaviour only; the timi
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -15,12 +16,13 @@ from scipy.optimize import nnls
 
 from pipeline import worker
 from pipeline.domains import load_domain
+from pipeline.domains.pick_place.world import ROOMS, placed_rod
 from pipeline.planning.base import Robot, check_order, interpolate
 from pipeline.planning.shortcut import Pairs as _Pairs
 from pipeline.sim import collide
 from pipeline.sim import fast_check as FC
 from pipeline.sim import panda as P
-from pipeline.sim.mobile import MobileArm
+from pipeline.sim.mobile import MobileArm, MobilePanda
 from pipeline.sim.world import add_box, connect
 from tests import replay
 
@@ -465,3 +467,116 @@ def test_a_configuration_settled_by_geometry_is_answered_again_without_pybullet(
         checker.exact = rec.exact
     assert settled > 0
     assert checker.stats["proved"] > 0
+
+
+# -- what the steps before a planning call settle on the planner's models --------------------
+
+def test_the_planners_models_are_remembered_per_pose_load_and_world(carrying):
+    """The arm's certified model is the same object again while the base pose, the held
+    rod (and how it is held) and the world are the same, the base's while the arm state,
+    the rod and the world are; another one where any of them differs.  A robot in a scene
+    that gives no world key gets a new model every call."""
+    domain, inst, theta, carry = carrying
+    robot, scene = domain.robot, domain.reset(inst)
+    arm = FC.certified(scene.arm)
+    assert FC.certified(scene.arm) is arm
+    robot.set_base(theta.place_pose)
+    assert FC.certified(scene.arm) is not arm
+    robot.set_base(domain.start_pose)
+    assert FC.certified(scene.arm) is arm
+    scene.put_rod(placed_rod(inst.rod_length, theta.placement))  # the world changed
+    assert FC.certified(scene.arm) is not arm
+    domain.reset(inst)
+    assert FC.certified(scene.arm) is arm
+    domain.hold(inst, theta.grasp, carry)
+    robot.set_base(domain.start_pose)
+    held = FC.certified(scene.arm)
+    assert held is not arm and FC.certified(scene.arm) is held
+    base = FC.certified(scene.base)
+    assert FC.certified(scene.base) is base
+    robot.set_arm(carry + 0.01)
+    assert FC.certified(scene.base) is not base
+    robot.set_arm(carry)
+    assert FC.certified(scene.base) is base
+    other = next(g for g in domain.grasps if g is not theta.grasp)
+    robot.grasp(scene.rod, other.rod_in_hand(inst.rod_length))  # held another way
+    assert FC.certified(scene.base) is not base
+    client = connect()
+    try:
+        bare = MobileArm(MobilePanda(client, contacts="fresh"))
+        assert FC.certified(bare) is not FC.certified(bare)
+    finally:
+        pb.disconnect(client)
+
+
+def _spheres_and_exact():
+    """pick_place with planner.collision=spheres and =exact (fresh contacts, the default),
+    each with its scene made."""
+    store = _store()
+    made = [load_domain("pick_place", planner={"name": "rrt_connect", "collision": c})
+            for c in ("spheres", "exact")]
+    for domain in made:
+        domain.scene(domain.check_instance(store["instances"][0]))
+    return made
+
+
+def test_ik_solutions_checked_on_the_planners_model_are_pybullets():
+    """Under spheres and fresh contacts, IK checks its solutions on the arm planner's model;
+    every pick and place IK outcome (solution, checks, status) equals the one checked by
+    pybullet alone, on every instance and grasp of the replay store, and the model
+    settled some solutions without pybullet."""
+    fast, exact = _spheres_and_exact()
+    settled = 0
+    try:
+        for spec in _store()["instances"]:
+            outcomes = []
+            for domain in (fast, exact):
+                inst = domain.check_instance(spec)
+                domain.scene(inst)
+                got = []
+                for k, g in enumerate(domain.grasps):
+                    domain.reset(inst)
+                    got.append(domain.pick_ik(inst, g, k))
+                    carry, _ = domain.carry(inst, g)
+                    theta = domain.constraint(_store()["theta"][k % len(_store()["theta"])])
+                    if carry is not None:
+                        domain.reset(inst)
+                        domain.hold(inst, g, carry)
+                        domain.robot.set_base(theta.place_pose)
+                        got.append(domain.place_ik(inst, dataclasses.replace(theta, grasp=g), k))
+                outcomes.append(got)
+            for a, b in zip(*outcomes, strict=True):
+                assert a.status == b.status and a.checks == b.checks
+                assert (a.q is None) == (b.q is None)
+                assert a.q is None or a.q.tobytes() == b.q.tobytes()
+            settled += sum(len(m.checker._settled) for m in fast.robot._models.values())
+        assert exact.ik_collides() is None
+    finally:
+        fast.close()
+        exact.close()
+    assert settled > 0
+
+
+def test_base_poses_settled_on_the_base_planners_model_are_pybullets():
+    """The base-pose step's check under spheres and fresh contacts: the base planner's
+    model settles what geometry decides (free and colliding poses both met), pybullet
+    the rest, and every answer is pybullet's at the pose itself; under exact it is
+    pybullet's check."""
+    fast, exact = _spheres_and_exact()
+    try:
+        inst = fast.check_instance(_store()["instances"][0])
+        g = fast.grasps[0]
+        carry, _ = fast.carry(inst, g)
+        assert carry is not None
+        fast.hold(inst, g, carry)
+        collides = fast.base_pose_collides()
+        checker = FC.certified(fast.scene_of().base).checker
+        rng = np.random.default_rng(11)
+        x0, x1, y0, y1 = ROOMS
+        for pose in rng.uniform([x0, y0, -np.pi], [x1, y1, np.pi], (300, 3)):
+            assert collides(pose) == fast.robot.base_collides(pose)
+        assert set(checker._settled.values()) == {True, False}
+        assert exact.base_pose_collides() == exact.robot.base_collides
+    finally:
+        fast.close()
+        exact.close()

@@ -38,7 +38,7 @@ from pipeline.domains.grasps import (
     grasp_set,
     pregrasp_pose,
 )
-from pipeline.domains.ik import solve_ik
+from pipeline.domains.ik import planner_check, solve_ik
 from pipeline.domains.schemas import GraspArmConfig
 from pipeline.domains.specs import parse_box, parse_obstacles, require
 from pipeline.planning import PlanResult, path_is_free
@@ -285,19 +285,8 @@ class GraspArmDomain(Domain):
         return RawSearch(plan, None, tries, checks)
 
     def ik_collides(self, arm: P.Panda):
-        """IK's check of a solution: the planner's (under ``planner.collision=spheres`` the
-        sphere pre-check, pybullet's answers) where pybullet's answers are a function of the
-        configuration (fresh contacts); None (pybullet's own) where a check left out could
-        change a later answer (cached contacts, docs/contacts.md)."""
-        if not arm.fresh_contacts or self.planner.collision != "spheres":
-            return None
-        model = []  # made when IK first has a solution to check
-
-        def collides(q) -> bool:
-            if not model:
-                model.append(self.motion.check_model(arm))
-            return not model[0].check(np.asarray(q, float)[None])[0]
-        return collides
+        """IK's check of a solution (:func:`pipeline.domains.ik.planner_check`)."""
+        return planner_check(self.motion, arm, arm.fresh_contacts)
 
     def check_limit(self) -> int:
         """The arm path's budget and a check per IK solution tried."""

@@ -62,3 +62,30 @@ def solve_ik(arm, position, orientation, rng_seed, restarts: int,
     if q is not None:
         return IKOutcome(q, checks, Status.OK)
     return IKOutcome(None, checks, Status.GOAL_IN_COLLISION if reached else Status.NO_IK)
+
+
+def settles_by_spheres(planner, fresh_contacts: bool) -> bool:
+    """Whether a step before ``planner``'s call may check on the planner's sphere
+    pre-check (``planner.collision=spheres``) instead of asking pybullet: only where
+    pybullet's answers are a function of the configuration (fresh contacts), since under
+    cached contacts a check left out could change a later answer (docs/contacts.md)."""
+    return fresh_contacts and getattr(planner.settings, "collision", "exact") == "spheres"
+
+
+def planner_check(planner, model, fresh_contacts: bool):
+    """IK's check of a solution on ``model`` (a robot model) as ``planner`` checks it: its
+    sphere pre-check with pybullet's answers under ``planner.collision=spheres``, where
+    pybullet's answers are a function of the configuration (fresh contacts).  The
+    planner's later call on the same model then reuses what IK settled.  None (the arm's
+    own pybullet check) where a check left out could change a later answer (cached
+    contacts, docs/contacts.md) or with ``collision=exact``.  The model is made when IK
+    first has a solution to check."""
+    if not settles_by_spheres(planner, fresh_contacts):
+        return None
+    made = []
+
+    def collides(q) -> bool:
+        if not made:
+            made.append(planner.check_model(model))
+        return not made[0].check(np.asarray(q, float)[None])[0]
+    return collides

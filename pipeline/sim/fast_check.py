@@ -745,12 +745,25 @@ class SphereChecker:
         """One configuration, as ``self(state[None])`` answers and counts it: the motion
         state→state (its only configuration is ``state``) in one compiled call."""
         self.stats["rows"] += 1
+        free = self.settle(state)
+        if free is not None:
+            self.stats["proved"] += not free
+            return free, 1
+        return (False, 1) if self._ask(state) else (True, 1)
+
+    def settle(self, state: np.ndarray) -> bool | None:
+        """Whether one configuration is free (True) or collides (False) where geometry
+        alone decides (the scan clears it, or proves a collision), None where only the
+        exact check can tell, and for a checker that does not scan motions.  Counts
+        nothing; the answer is kept for the configuration (asked again, about one in six
+        in pick_place, the same answer)."""
+        if self._motion is None:
+            return None
         q = np.ascontiguousarray(state, dtype=float)
         key = q.tobytes()
         settled = self._settled.get(key)
         if settled is not None:
-            self.stats["proved"] += not settled
-            return settled, 1
+            return settled
         if self._args is None:
             self._args = self._motion_args()
         kind, psi, step, table, chain, packed, memo = self._args
@@ -761,14 +774,10 @@ class SphereChecker:
             table.uncertain(q[None])
             _, k, proved = collide.edge_first(q, q, 1.0, 1, 0, kind, psi, step, table.state,
                                               chain, packed, memo)
-        if k >= 1:
-            self._settled[key] = True
-            return True, 1
-        if proved:
-            self.stats["proved"] += 1
-            self._settled[key] = False
-            return False, 1
-        return (False, 1) if self._ask(state) else (True, 1)
+        if k >= 1 or proved:
+            self._settled[key] = k >= 1
+            return k >= 1
+        return None
 
     def _ask(self, q: np.ndarray) -> bool:
         """The exact check of row q (True: collides), counted, or its answer from memory
@@ -1127,8 +1136,7 @@ def certified_mobile_arm(model) -> CertifiedRobot:
 def certified_mobile_base(model) -> CertifiedRobot:
     """A mobile Panda's base's (:class:`pipeline.sim.mobile.MobileBase`)."""
     compile_kernels()
-    r = model.robot
-    r.set_base(r.pose)  # the held object where base checks will put it
+    r = model.robot  # its held object where base checks will put it (MobileBase.certified)
     return CertifiedRobot(model, base_checker(
         r.client, r.body, r.platform, r.base_frame(), model.psi_scale, model.collides,
         _internal_free(r), held=_held(r, hand=False),

@@ -30,6 +30,8 @@ PLATFORM_LIFT = 0.01  # gap between the floor and the platform's underside
 MOUNT = 0.12  # the arm's base is this far ahead of the platform's centre
 HAND_LINKS = frozenset({7, 8, 9, 10, 11})  # flange, hand, fingers, TCP: may touch what it holds
 ARM_HEIGHT = PLATFORM_LIFT + PLATFORM[2] + 0.001  # the arm's base above the floor
+#: sphere-certified models a MobilePanda keeps (:meth:`MobilePanda.remembered_model`)
+MODELS_KEPT = 32
 
 
 def base_transform(pose) -> np.ndarray:
@@ -62,6 +64,7 @@ class MobilePanda:
         self._obj_at: tuple[np.ndarray, np.ndarray] | None = (self.pose, np.eye(4))
         self._base_obj_memo: np.ndarray | None = None
         self._placements: dict[bytes, tuple] = {}  # base pose -> what set_base computes
+        self._models: dict[tuple, object] = {}  # see remembered_model
         self.set_base(self.pose)
 
     # -- state -----------------------------------------------------------------------------
@@ -185,6 +188,26 @@ class MobilePanda:
     def base_frame(self) -> np.ndarray:
         return base_transform(self.pose)
 
+    def remembered_model(self, part: str, state: bytes, make):
+        """``make()``, a sphere-certified model of ``part`` ("arm": base fixed at ``state``,
+        the base pose; "base": arm fixed at ``state``, its joints), or the one it made before
+        while the scene's :attr:`world_key`, what is held and how are the same: a planning
+        call then reuses what the calls before it settled (each instance's pick motions
+        share one model, each grasp's base motions another).  Without a world key, a new
+        model every call.  The :data:`MODELS_KEPT` most recently used are kept."""
+        world = self.world_key() if callable(self.world_key) else None
+        if world is None:
+            return make()
+        held = None if self.held is None else (self.held, self._tcp_obj.tobytes())
+        key = (part, state, world, held)
+        model = self._models.pop(key, None)
+        if model is None:
+            model = make()
+        self._models[key] = model  # the most recently used last
+        if len(self._models) > MODELS_KEPT:
+            del self._models[next(iter(self._models))]
+        return model
+
     @property
     def held_in_tcp(self) -> np.ndarray:
         return self._tcp_obj
@@ -193,13 +216,16 @@ class MobilePanda:
     def held_in_base(self) -> np.ndarray:
         return self._base_obj
 
-    def ik(self, position, orientation, starts):
-        """Panda.ik with this robot's check (platform and held object included)."""
-        return self.arm.ik(position, orientation, starts, collides=self.arm_collides)
+    def ik(self, position, orientation, starts, collides=None):
+        """Panda.ik with this robot's check (platform and held object included), or
+        ``collides``: a check with the same answers."""
+        return self.arm.ik(position, orientation, starts,
+                           collides=collides or self.arm_collides)
 
-    def analytic_ik(self, position, orientation, tries: int):
-        """Panda.analytic_ik with this robot's check (platform and held object included)."""
-        return self.arm.analytic_ik(position, orientation, tries, collides=self.arm_collides)
+    def analytic_ik(self, position, orientation, tries: int, collides=None):
+        """Panda.analytic_ik with this robot's check, or ``collides`` (as :meth:`ik`)."""
+        return self.arm.analytic_ik(position, orientation, tries,
+                                    collides=collides or self.arm_collides)
 
     def held_pose(self) -> np.ndarray:
         return _pose_of(self.held, self.client)
@@ -219,10 +245,12 @@ class MobileArm(Robot):
         return self.robot.arm_check(states)
 
     def certified(self):
-        """This arm with sphere-certified checks (the ``certified`` capability)."""
+        """This arm with sphere-certified checks (the ``certified`` capability), the same
+        model again for the same base pose and world (:meth:`MobilePanda.remembered_model`)."""
         from pipeline.sim.fast_check import certified_mobile_arm
 
-        return certified_mobile_arm(self)
+        r = self.robot
+        return r.remembered_model("arm", r.pose.tobytes(), lambda: certified_mobile_arm(self))
 
 
 class UnladenArm(MobileArm):
@@ -249,10 +277,14 @@ class MobileBase(Robot):
         self.lower, self.upper = np.asarray(lower, float), np.asarray(upper, float)
 
     def certified(self):
-        """This base with sphere-certified checks (the ``certified`` capability)."""
+        """This base with sphere-certified checks (the ``certified`` capability), the same
+        model again for the same arm state and world (:meth:`MobilePanda.remembered_model`)."""
         from pipeline.sim.fast_check import certified_mobile_base
 
-        return certified_mobile_base(self)
+        r = self.robot
+        r.set_base(r.pose)  # the held object where base checks will put it
+        return r.remembered_model("base", r._current_q().tobytes(),
+                                  lambda: certified_mobile_base(self))
 
     def collides(self, s) -> bool:
         return self.robot.base_collides((s[0], s[1], s[2] / self.psi_scale))

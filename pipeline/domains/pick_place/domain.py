@@ -11,7 +11,7 @@ import numpy as np
 from pipeline.domains import features as F
 from pipeline.domains.base import Domain, Feature, RawSearch, constraint_row
 from pipeline.domains.geometry import rectangle, sample_obstacles
-from pipeline.domains.ik import IKOutcome, solve_ik
+from pipeline.domains.ik import IKOutcome, planner_check, settles_by_spheres, solve_ik
 from pipeline.domains.mobile_world import (
     OBSTACLE_RGBA,
     TablePlacer,
@@ -201,7 +201,7 @@ class PickPlaceDomain(Domain):
         target = rod_pose(inst.rod_length, theta.placement) @ theta.grasp.rod_tcp(
             inst.rod_length)
         return solve_ik(self.robot, target[:3, 3], quaternion(target[:3, :3]),
-                        [seed, 13], self.config.ik_restarts, self.config.ik)
+                        [seed, 13], self.config.ik_restarts, self.config.ik, self.ik_collides())
 
     def pick_ik(self, inst, g: RodGrasp, seed: int) -> IKOutcome:
         """IK at the start for g's pre-grasp of the rod on the start table."""
@@ -209,7 +209,32 @@ class PickPlaceDomain(Domain):
             inst.rod_length)
         pre = grasp[:3, 3] - grasp[:3, 2] * self.config.pregrasp_offset
         return solve_ik(self.robot, pre, quaternion(grasp[:3, :3]),
-                        [seed, 17], self.config.ik_restarts, self.config.ik)
+                        [seed, 17], self.config.ik_restarts, self.config.ik, self.ik_collides())
+
+    def ik_collides(self):
+        """IK's check of a solution at the robot's current base and load: the arm planner's
+        (:func:`pipeline.domains.ik.planner_check`; the arm motion that follows the IK step
+        plans on the same model)."""
+        return planner_check(self.arm_motion, self._scene.arm, self.robot.fresh_contacts)
+
+    def base_pose_collides(self):
+        """The check of a base pose (x, y, ψ) at the robot's current arm state and load:
+        where the base planner's sphere pre-check settles the pose by geometry alone
+        (:func:`pipeline.domains.ik.settles_by_spheres`), its answer, else pybullet's at
+        the pose itself.  The base motion that follows plans on the same model, which then knows
+        these poses."""
+        robot = self.robot
+        if not settles_by_spheres(self.base_motion, robot.fresh_contacts):
+            return robot.base_collides
+        checker = getattr(self.base_motion.check_model(self._scene.base), "checker", None)
+        if checker is None:
+            return robot.base_collides
+        s = self.config.psi_scale
+
+        def collides(pose) -> bool:
+            free = checker.settle(np.array([pose[0], pose[1], s * pose[2]]))
+            return robot.base_collides(pose) if free is None else not free
+        return collides
 
     def drive(self, inst, g: RodGrasp, carry, poses, seed: int) -> PlanResult:
         """Base path through ``poses`` (the first is the start), arm in carry, rod held."""

@@ -60,10 +60,11 @@ def _placement(d, inst, theta: Route, seed: int, p: Progress):
 
 def _base_pose(d, inst, theta: Route, seed: int, p: Progress):
     d.hold(inst, theta.grasp, p.carry)
+    collides = d.base_pose_collides()
     for pose, status in ((theta.subgoal, Status.START_IN_COLLISION),
                          (theta.place_pose, Status.GOAL_IN_COLLISION)):
         p.checks += 1
-        if d.robot.base_collides(pose):
+        if collides(pose):
             return PlanResult(status)
     return None
 
