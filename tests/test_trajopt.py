@@ -178,6 +178,13 @@ def _assert_same_contacts(model, states, query=0.05):
     fast = bounded(model, query)
     asked = fast.close_mask(states)
     assert asked.mean() < 0.5  # most bodies are left out ...
+    # the links' bounding spheres only save the tests of their spheres: without them
+    # (infinite radii), the same bodies are asked
+    robot = list(fast._robot)
+    assert np.isfinite(robot[4]).all()
+    robot[4] = np.full_like(robot[4], np.inf)
+    fast._robot = tuple(robot)
+    assert np.array_equal(fast.close_mask(states), asked)
     for q, got in zip(states, fast.many(states), strict=True):
         want = full(q)
         assert got[0].tobytes() == want[0].tobytes() and got[1].tobytes() == want[1].tobytes()

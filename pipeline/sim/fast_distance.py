@@ -43,13 +43,15 @@ SAFETY = 0.01
 
 
 @njit(cache=True)
-def near_bodies(frames, link_frame, link_lo, link_hi, sph_c, sph_r, hull_lo, hull_hi, hull_v,
-                box_c, box_R, box_h, obs_c, obs_r, grp_lo, grp_hi, grp_c, grp_r, body_lo,
-                body_hi, reach, out):  # pragma: no cover (compiled)
+def near_bodies(frames, link_frame, link_lo, link_hi, link_c, link_r, sph_c, sph_r, hull_lo,
+                hull_hi, hull_v, box_c, box_R, box_h, obs_c, obs_r, grp_lo, grp_hi, grp_c,
+                grp_r, body_lo, body_hi, reach, out):  # pragma: no cover (compiled)
     """out[n, b]: may the robot at ``frames[n]`` come within ``reach`` of body b?
 
     The robot is links l riding on frames link_frame[l], each covered by the spheres
-    sph_c[link_lo[l]:link_hi[l]] (in that frame; radii sph_r) and, where hull_lo[l] <
+    sph_c[link_lo[l]:link_hi[l]] (in that frame; radii sph_r), which all lie in the
+    sphere link_c[l], link_r[l] (a box that sphere is out of reach of is out of reach
+    of every sphere of the link: their own tests are left out), and, where hull_lo[l] <
     hull_hi[l], the convex hull of the vertices hull_v[hull_lo[l]:hull_hi[l]] (in that
     frame).  Boxes b < len(box_c) (centre box_c[b], axes the columns of box_R[b], half
     extents box_h[b]): a link is out of reach when its spheres are, or when its hull lies
@@ -60,6 +62,7 @@ def near_bodies(frames, link_frame, link_lo, link_hi, sph_c, sph_r, hull_lo, hul
     n_box = box_c.shape[0]
     n_link = link_lo.shape[0]
     centres = np.empty((sph_c.shape[0], 3))
+    bounds = np.empty((n_link, 3))
     hull = np.empty((hull_v.shape[0], 3))
     placed = np.zeros(n_link, dtype=np.bool_)
     for n in range(frames.shape[0]):
@@ -70,9 +73,23 @@ def near_bodies(frames, link_frame, link_lo, link_hi, sph_c, sph_r, hull_lo, hul
                 for i in range(3):
                     centres[s, i] = (F[i, 0] * sph_c[s, 0] + F[i, 1] * sph_c[s, 1]
                                      + F[i, 2] * sph_c[s, 2] + F[i, 3])
+            for i in range(3):
+                bounds[s_link, i] = (F[i, 0] * link_c[s_link, 0] + F[i, 1] * link_c[s_link, 1]
+                                     + F[i, 2] * link_c[s_link, 2] + F[i, 3])
         for b in range(n_box):
             out[n, b] = False
             for lk in range(n_link):
+                gap = 0.0
+                for j in range(3):
+                    local = 0.0
+                    for i in range(3):
+                        local += (bounds[lk, i] - box_c[b, i]) * box_R[b, i, j]
+                    over = abs(local) - box_h[b, j]
+                    if over > 0.0:
+                        gap += over * over
+                limit = reach + link_r[lk]
+                if gap > limit * limit:
+                    continue  # every sphere of the link is out of reach
                 touches = False
                 for s in range(link_lo[lk], link_hi[lk]):
                     gap = 0.0
@@ -147,11 +164,30 @@ def compile_kernel() -> None:
     global _COMPILED
     if not _COMPILED:
         one, ints = np.zeros(1, np.int64), np.ones(1, np.int64)
-        near_bodies(np.zeros((1, 8, 3, 4)), one, one, ints, np.zeros((1, 3)), np.zeros(1),
-                    one, ints, np.zeros((1, 3)), np.zeros((1, 3)), np.zeros((1, 3, 3)),
+        near_bodies(np.zeros((1, 8, 3, 4)), one, one, ints, np.zeros((1, 3)), np.ones(1),
+                    np.zeros((1, 3)), np.zeros(1), one, ints, np.zeros((1, 3)), np.zeros((1, 3)),
+                    np.zeros((1, 3, 3)),
                     np.zeros((1, 3)), np.zeros((1, 3)), np.zeros(1), one, ints,
                     np.zeros((1, 3)), np.ones(1), one, ints, 0.0, np.zeros((1, 2), np.bool_))
         _COMPILED = True
+
+
+#: what a link's bounding sphere (:func:`_bounding_spheres`) adds to its radius (metres):
+#: far above the rounding of the kernel's arithmetic, so that a box it shows out of reach
+#: is out of reach of each sphere as the kernel computes it
+BOUND_SLACK = 1e-9
+
+
+def _bounding_spheres(model, links) -> tuple[np.ndarray, np.ndarray]:
+    """(L, 3) centres and (L,) radii, in each link's frame, of spheres holding every
+    sphere of the links ``links`` of the sphere model ``model``."""
+    centres, radii = [], []
+    for link in links:
+        c, r = model.centres[model.links == link], model.radii[model.links == link]
+        mid = 0.5 * (c.min(axis=0) + c.max(axis=0))
+        centres.append(mid)
+        radii.append(float((np.linalg.norm(c - mid, axis=1) + r).max()) + BOUND_SLACK)
+    return np.array(centres, float).reshape(-1, 3), np.array(radii, float)
 
 
 class BoundedDistances:
@@ -173,8 +209,9 @@ class BoundedDistances:
         sizes = [len(hulls[k]) for k in links]
         lo, hlo = np.cumsum([0] + counts), np.cumsum([0] + sizes)
         keep = np.concatenate([np.flatnonzero(model.links == k) for k in links])
+        bound_c, bound_r = _bounding_spheres(model, links)
         self._robot = (np.array([spheres.FRAME_OF_LINK[k] for k in links], dtype=np.int64),
-                       lo[:-1].astype(np.int64), lo[1:].astype(np.int64),
+                       lo[:-1].astype(np.int64), lo[1:].astype(np.int64), bound_c, bound_r,
                        np.ascontiguousarray(model.centres[keep]),
                        np.ascontiguousarray(model.radii[keep]),
                        hlo[:-1].astype(np.int64), hlo[1:].astype(np.int64),
