@@ -13,6 +13,10 @@ otherwise):
   ``--instances`` × ``--constraints`` entries planned as a worker plans a block
   (:func:`pipeline.worker.score_block`), CPU-s per entry.
 
+Each is run ``--repeats`` times (fresh processes, the same entries): the table shows the
+medians and the range of the CPU time per entry (one run's figure drifted by 7 % to 60 %
+from the next on the 2-core machine, 2026-11-27).
+
 The projection: ``n·m`` entries × CPU-s per entry + ``n`` RAWPLANNER solves, divided by the
 cores.  It leaves out what does not scale with the entries (sampling instances, the
 evaluation; seconds) and the pipeline's own overhead (``benchmarks/bench_pipeline.py``
@@ -23,7 +27,8 @@ The paper's sizes (§V): grasp_arm 1800 × 162, grasp_base 1000 × 1000, pick_pl
 TrajOpt runs on grasp_arm and grasp_base only (the paper's TrajOpt stores).
 
 Run: python benchmarks/bench_paper_scale.py [--raw 30] [--instances 24] [--constraints 60]
-         [--cores 2] [--only grasp_arm|grasp_base|pick_place] [--planners rrt_connect,trajopt]
+         [--cores 2] [--repeats 3] [--only grasp_arm|grasp_base|pick_place]
+         [--planners rrt_connect,trajopt]
          [--real grasp_base:1000x1000 | grasp_arm:1800x162:trajopt]
 """
 
@@ -32,6 +37,7 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -103,9 +109,16 @@ def child(job: dict) -> None:
 
 
 def measure(domain: str, planner: str, args) -> dict:
+    """The sample's figures, each the median of ``--repeats`` fresh processes (the same
+    entries every time), with the range of the CPU time per entry ("entry_cpu_range")."""
     job = {"domain": domain, "planner": planner, "seed": args.seed, "raw": args.raw,
            "instances": args.instances, "constraints": args.constraints}
-    return run_child(__file__, job, ROOT, f"{domain} × {planner}")
+    runs = [run_child(__file__, job, ROOT, f"{domain} × {planner}")
+            for _ in range(args.repeats)]
+    row = {key: statistics.median(run[key] for run in runs) for key in runs[0]}
+    cpu = [run["entry_cpu_s"] for run in runs]
+    row["entry_cpu_range"] = (min(cpu), max(cpu))
+    return row
 
 
 # -- the parent -------------------------------------------------------------------------
@@ -165,6 +178,8 @@ def main() -> None:
     ap.add_argument("--constraints", type=int, default=60,
                     help="constraints of the timed block (the default store block's width)")
     ap.add_argument("--cores", type=int, default=2)
+    ap.add_argument("--repeats", type=int, default=3,
+                    help="sample runs per domain × planner (fresh processes; medians)")
     ap.add_argument("--seed", type=int, default=2017)
     ap.add_argument("--only", choices=sorted(PAPER))
     ap.add_argument("--planners", default="rrt_connect,trajopt")
@@ -178,9 +193,9 @@ def main() -> None:
         return
     wanted = args.planners.split(",")
     unknown = sorted(set(wanted) - {"rrt_connect", "trajopt"})
-    if unknown or args.cores < 1:
+    if unknown or args.cores < 1 or args.repeats < 1:
         ap.error(f"--planners: unknown {', '.join(unknown)}" if unknown
-                 else "--cores must be at least 1")
+                 else "--cores and --repeats must be at least 1")
     rows = {}
     for domain in [args.only] if args.only else PAPER:
         for planner in PLANNERS[domain]:
@@ -201,17 +216,19 @@ def report(rows: dict, args) -> None:
     c = args.cores
     print(f"Paper-scale stage=generate, projected from one-core samples ({args.instances} "
           f"instances × up to {args.constraints} constraints per domain × planner, "
-          f"RAWPLANNER on {args.raw} instances); wall = CPU / {c} cores, the pipeline's "
-          "overhead left out")
+          f"RAWPLANNER on {args.raw} instances; medians of {args.repeats} runs, the range of "
+          f"ms/entry beside); wall = CPU / {c} cores, the pipeline's overhead left out")
     head = (f"  {'domain':<11}{'planner':<13}{'paper n × m':>14}{'ms/entry':>10}"
-            f"{'s/RAW':>7}{'feasible':>10}{'CPU-h':>7}{f'wall, {c} cores':>17}")
+            f"{'range':>13}{'s/RAW':>7}{'feasible':>10}{'CPU-h':>7}{f'wall, {c} cores':>17}")
     print(head)
     totals = {}
     for (domain, planner), row in rows.items():
         n, m = PAPER[domain]
         wall = projected_s(row, n, m, c)
         totals[planner] = totals.get(planner, 0.0) + wall
+        lo, hi = row["entry_cpu_range"]
         print(f"  {domain:<11}{planner:<13}{f'{n} × {m}':>14}{row['entry_cpu_s'] * 1e3:>10.2f}"
+              f"{f'{lo * 1e3:.2f}–{hi * 1e3:.2f}':>13}"
               f"{row['raw_cpu_s']:>7.2f}{row['feasible']:>10.1%}"
               f"{wall * c / 3600:>7.2f}{clock(wall):>17}")
     for planner, total in totals.items():
