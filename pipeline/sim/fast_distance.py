@@ -73,22 +73,12 @@ def near_bodies(frames, link_frame, link_lo, link_hi, link_c, link_r, sph_c, sph
                 for i in range(3):
                     centres[s, i] = (F[i, 0] * sph_c[s, 0] + F[i, 1] * sph_c[s, 1]
                                      + F[i, 2] * sph_c[s, 2] + F[i, 3])
-            for i in range(3):
-                bounds[s_link, i] = (F[i, 0] * link_c[s_link, 0] + F[i, 1] * link_c[s_link, 1]
-                                     + F[i, 2] * link_c[s_link, 2] + F[i, 3])
+            collide._apply(F, link_c[s_link], bounds[s_link])
         for b in range(n_box):
             out[n, b] = False
             for lk in range(n_link):
-                gap = 0.0
-                for j in range(3):
-                    local = 0.0
-                    for i in range(3):
-                        local += (bounds[lk, i] - box_c[b, i]) * box_R[b, i, j]
-                    over = abs(local) - box_h[b, j]
-                    if over > 0.0:
-                        gap += over * over
-                limit = reach + link_r[lk]
-                if gap > limit * limit:
+                if not collide._sphere_box(bounds[lk], reach + link_r[lk], box_c[b], box_R[b],
+                                           box_h[b]):
                     continue  # every sphere of the link is out of reach
                 touches = False
                 for s in range(link_lo[lk], link_hi[lk]):
