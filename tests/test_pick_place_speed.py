@@ -22,7 +22,7 @@ from pipeline.planning.shortcut import Pairs as _Pairs
 from pipeline.sim import collide
 from pipeline.sim import fast_check as FC
 from pipeline.sim import panda as P
-from pipeline.sim.mobile import MobileArm, MobilePanda
+from pipeline.sim.mobile import MobileArm, MobilePanda, UnladenArm
 from pipeline.sim.world import add_box, connect
 from tests import replay
 
@@ -480,6 +480,8 @@ def test_the_planners_models_are_remembered_per_pose_load_and_world(carrying):
     robot, scene = domain.robot, domain.reset(inst)
     arm = FC.certified(scene.arm)
     assert FC.certified(scene.arm) is arm
+    assert FC.certified(MobileArm(robot)) is arm  # the same kind of model
+    assert FC.certified(UnladenArm(robot)) is not arm  # another kind
     robot.set_base(theta.place_pose)
     assert FC.certified(scene.arm) is not arm
     robot.set_base(domain.start_pose)

@@ -1136,7 +1136,7 @@ def certified_mobile_arm(model) -> CertifiedRobot:
 def certified_mobile_base(model) -> CertifiedRobot:
     """A mobile Panda's base's (:class:`pipeline.sim.mobile.MobileBase`)."""
     compile_kernels()
-    r = model.robot  # its held object where base checks will put it (MobileBase.certified)
+    r = model.robot  # MobileBase.certified put its held object where base checks will
     return CertifiedRobot(model, base_checker(
         r.client, r.body, r.platform, r.base_frame(), model.psi_scale, model.collides,
         _internal_free(r), held=_held(r, hand=False),

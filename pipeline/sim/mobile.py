@@ -188,10 +188,11 @@ class MobilePanda:
     def base_frame(self) -> np.ndarray:
         return base_transform(self.pose)
 
-    def remembered_model(self, part: str, state: bytes, make):
-        """``make()``, a sphere-certified model of ``part`` ("arm": base fixed at ``state``,
-        the base pose; "base": arm fixed at ``state``, its joints), or the one it made before
-        while the scene's :attr:`world_key`, what is held and how are the same: a planning
+    def remembered_model(self, part: type, state: bytes, make):
+        """``make()``, a sphere-certified model of this robot's ``part`` (the class of the
+        robot model: an arm, whose base is fixed at ``state``, the base pose; the base, whose
+        arm is fixed at ``state``, its joints), or the one it made for the same class and
+        state while the scene's :attr:`world_key`, what is held and how are the same: a planning
         call then reuses what the calls before it settled (each instance's pick motions
         share one model, each grasp's base motions another).  Without a world key, a new
         model every call.  The :data:`MODELS_KEPT` most recently used are kept."""
@@ -250,7 +251,8 @@ class MobileArm(Robot):
         from pipeline.sim.fast_check import certified_mobile_arm
 
         r = self.robot
-        return r.remembered_model("arm", r.pose.tobytes(), lambda: certified_mobile_arm(self))
+        return r.remembered_model(type(self), r.pose.tobytes(),
+                                  lambda: certified_mobile_arm(self))
 
 
 class UnladenArm(MobileArm):
@@ -283,7 +285,7 @@ class MobileBase(Robot):
 
         r = self.robot
         r.set_base(r.pose)  # the held object where base checks will put it
-        return r.remembered_model("base", r._current_q().tobytes(),
+        return r.remembered_model(type(self), r._current_q().tobytes(),
                                   lambda: certified_mobile_base(self))
 
     def collides(self, s) -> bool:
