@@ -551,7 +551,7 @@ def test_ik_solutions_checked_on_the_planners_model_are_pybullets():
                 assert a.status == b.status and a.checks == b.checks
                 assert (a.q is None) == (b.q is None)
                 assert a.q is None or a.q.tobytes() == b.q.tobytes()
-            settled += sum(len(m.checker._settled) for m in fast.robot._models.values())
+            settled += sum(len(m.checker._settled) for m in fast.robot._models.items.values())
         assert exact.ik_collides() is None
     finally:
         fast.close()

@@ -51,12 +51,12 @@ def solve_ik(arm, position, orientation, rng_seed, restarts: int,
         return IKOutcome(None, 0, Status.NO_IK)
     if wrist_out_of_reach(arm.joint2, position, orientation):
         return IKOutcome(None, 0, Status.NO_IK)
-    check = {} if collides is None else {"collides": collides}
     if method == "damped":
         q, checks, reached = arm.ik(position, orientation, ik_starts(rng_seed, restarts),
-                                    **check)
+                                    collides=collides)
     elif method == "analytic":
-        q, checks, reached = arm.analytic_ik(position, orientation, restarts, **check)
+        q, checks, reached = arm.analytic_ik(position, orientation, restarts,
+                                             collides=collides)
     else:
         raise ValueError(f"IK method must be one of {', '.join(METHODS)}, got {method!r}")
     if q is not None:

@@ -239,8 +239,9 @@ class World:
                      self.og_ilo, self.og_ihi)
 
 
-class _Memo:
-    """A small least-recently-used memo."""
+class Memo:
+    """A small least-recently-used memo: ``get(key, make)`` is the value kept for ``key``,
+    or ``make()``, kept; beyond ``size`` keys the least recently used goes."""
 
     def __init__(self, size: int):
         self.size, self.items = size, OrderedDict()
@@ -257,7 +258,7 @@ class _Memo:
 
 #: worlds read under a scene's ``world_key`` (what is not the robot, as it stands), the
 #: robot models made from a robot's state, and the internal clearances measured for them
-_WORLDS, _ROBOTS, _CLEARANCES = _Memo(64), _Memo(512), _Memo(512)
+_WORLDS, _ROBOTS, _CLEARANCES = Memo(64), Memo(512), Memo(512)
 
 
 def _key_of(array, digits: int = 9) -> bytes:

@@ -64,7 +64,7 @@ class MobilePanda:
         self._obj_at: tuple[np.ndarray, np.ndarray] | None = (self.pose, np.eye(4))
         self._base_obj_memo: np.ndarray | None = None
         self._placements: dict[bytes, tuple] = {}  # base pose -> what set_base computes
-        self._models: dict[tuple, object] = {}  # see remembered_model
+        self._models = None  # see remembered_model
         self.set_base(self.pose)
 
     # -- state -----------------------------------------------------------------------------
@@ -199,15 +199,12 @@ class MobilePanda:
         world = self.world_key() if callable(self.world_key) else None
         if world is None:
             return make()
+        if self._models is None:
+            from pipeline.sim.fast_check import Memo  # here: numba loads with fast_check
+
+            self._models = Memo(MODELS_KEPT)
         held = None if self.held is None else (self.held, self._tcp_obj.tobytes())
-        key = (part, state, world, held)
-        model = self._models.pop(key, None)
-        if model is None:
-            model = make()
-        self._models[key] = model  # the most recently used last
-        if len(self._models) > MODELS_KEPT:
-            del self._models[next(iter(self._models))]
-        return model
+        return self._models.get((part, state, world, held), make)
 
     @property
     def held_in_tcp(self) -> np.ndarray:
