@@ -470,7 +470,8 @@ class SphereRobot:
             or self._hits_robot(frames, n, world))
 
     def _hits_robot(self, frames: np.ndarray, n: int, world: World) -> bool:
-        """An inner sphere that deep in one of another robot's (:meth:`World.read`)."""
+        """Whether an inner sphere lies PROOF_DEPTH deep in one of another robot's inner
+        spheres (:meth:`World.read`): a proven collision."""
         return bool(len(world.oin_r) and len(self.in_r) and collide.inner_hit_spheres(
             frames, n, self.in_frame, self.in_c, self.in_r, world.og_c, world.og_r,
             world.og_ilo, world.og_ihi, world.oin_c, world.oin_r, PROOF_DEPTH))
