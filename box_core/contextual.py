@@ -57,6 +57,7 @@ import numpy as np
 
 from box_core.gaussian import argmax_sequence, argmax_untried
 from box_core.prior import Prior
+from box_core.row_sums import RowTable
 from box_core.selectors import TIME_FLOOR, Box, FoldContext, TrainingOutcomes, register
 from box_core.tries import FAILED, FEASIBLE, PAUSED, simulate
 
@@ -138,12 +139,12 @@ class NeighbourModel:
         own = held >= 0
         self._mean = np.repeat((total / n)[None, :], B, axis=0)
         if own.any():
-            self._mean[own] = (total - self._A[held[own]]) / (n - 1)
+            self._mean[own] = (total - self._A.rows[held[own]]) / (n - 1)
         from scipy import sparse  # here: see box_core.stats on import times
 
         rows = np.repeat(np.arange(B), k)
         W = sparse.csr_matrix((self._w.ravel(), (rows, self._nb.ravel())), shape=(B, n))
-        self._sums = np.asarray(W @ self._A)
+        self._sums = self._A.weighted(W)
         self._mass = self._w.sum(axis=1)
         self.m = m
 
@@ -202,20 +203,57 @@ class NeighbourModel:
         b = rows[r]
         change = self._w[b, i] * (self.rho - 1.0)
         self._w[b, i] += change
-        B = self._w.shape[0]
-        indptr = np.zeros(B + 1, dtype=np.intp)
-        np.cumsum(np.bincount(b, minlength=B), out=indptr[1:])
+        # Only the instances with a changed weight get a product: one sparse row each
+        # (b ascending), added to their sums as the product of all B rows would add it
+        # (a row with no change would add zeros).
+        moved, first = np.unique(b, return_index=True)
+        indptr = np.append(first, b.size)
         from scipy import sparse
 
         delta = sparse.csr_matrix((change, self._nb[b, i], indptr),
-                                  shape=(B, self._A.shape[0]))
-        self._sums += np.asarray(delta @ self._A)
-        self._mass += np.bincount(b, weights=change, minlength=B)
+                                  shape=(moved.size, self._A.shape[0]))
+        self._sums[moved] += self._A.weighted(delta)
+        self._mass += np.bincount(b, weights=change, minlength=self._w.shape[0])
 
     def keep(self, folds: np.ndarray) -> None:
         self._nb, self._w = self._nb[folds], self._w[folds]
         self._sums, self._mean, self._mass = self._sums[folds], self._mean[folds], \
             self._mass[folds]
+
+
+class DeferredPosterior:
+    """BOX's posterior, conditioned only when something reads it.
+
+    Before its first plan an instance's tries follow p / tau; BOX's bounds are read only
+    where no candidate has a positive rate, and after the first plan.  A run that stops at
+    the first plan (the tuning's inner leave-one-out) rarely reads them at all, yet
+    conditioning every try was a fifth of its time.  So :meth:`observe` and :meth:`keep`
+    are queued, and any other use first applies the queue in order to the posterior:
+    the same calls with the same arguments, so the same numbers as conditioning at once.
+    ``inert`` is fixed when the posterior is made and reads nothing queued."""
+
+    def __init__(self, posterior):
+        self._posterior = posterior
+        self._queue: list[tuple] = []
+        self.inert = posterior.inert
+
+    def observe(self, cols, scores, skip=None) -> None:
+        self._queue.append((np.array(cols), np.array(scores),
+                            None if skip is None else np.array(skip)))
+
+    def keep(self, folds) -> None:
+        self._queue.append((np.array(folds),))
+
+    def __getattr__(self, name):
+        post = self.__dict__["_posterior"]
+        queue = self.__dict__["_queue"]
+        for call in queue:
+            if len(call) == 1:
+                post.keep(call[0])
+            else:
+                post.observe(call[0], call[1], skip=call[2])
+        queue.clear()
+        return getattr(post, name)
 
 
 def _entry_tables(F, T, C, cap):
@@ -239,7 +277,7 @@ def _entry_tables(F, T, C, cap):
     kept = (1, 4) if math.isinf(cap) else (1, 2, 3, 4, 5)
     blocks = {1: cls == 1, 2: cls == 2, 3: cls == 3, 4: T * share, 5: T * (1.0 - share)}
     A = np.concatenate([blocks[b].astype(np.float64) for b in kept], axis=1)
-    return cls, kept, A, A.sum(axis=0)
+    return cls, kept, RowTable(A), A.sum(axis=0)
 
 
 def _rate(p: np.ndarray, tau: np.ndarray) -> np.ndarray:
@@ -287,6 +325,7 @@ class Contextual(Box):
         if has_features(X):
             self._model = NeighbourModel(ctx.outcomes, X, query, int(k), mismatch,
                                          prior_rows, self.cap, ranks)
+            self.posterior = DeferredPosterior(self.posterior)
 
     @classmethod
     def drops_tried(cls) -> bool:

@@ -27,6 +27,7 @@ from box_core.gaussian import (
     argmax_untried_at,
 )
 from box_core.prior import FoldPriors, Prior
+from box_core.row_sums import RowTable
 from box_core.tries import PAUSED
 
 SELECTORS: dict[str, type[Policy]] = {}
@@ -631,7 +632,7 @@ class Eips(Policy):
             self._g = tuple(g[:, kept] for g in self._g)
         # F, L_ok and L_fail side by side: one sparse product updates the three sums
         # (column by column the same numbers as three products)
-        self._FL = np.ascontiguousarray(np.concatenate([F, *L], axis=1))
+        self._FL = RowTable(np.ascontiguousarray(np.concatenate([F, *L], axis=1)))
         self._changing = int(self._live.sum())  # rows whose weight is still updated
         self._frozen = None  # (p, tau) once no weight changes any more
 
@@ -707,6 +708,7 @@ class Eips(Policy):
             if 3 * b.size >= self._w.size:  # a third of all weights: one BLAS product
                 delta = np.zeros(self._w.shape)
                 delta[b, r] = change
+                added = delta @ self._FL.rows
             else:
                 from scipy import sparse  # here: see box_core.stats on import times
 
@@ -715,7 +717,7 @@ class Eips(Policy):
                 indptr = np.zeros(self.ctx.size + 1, dtype=np.intp)
                 np.cumsum(np.bincount(b, minlength=self.ctx.size), out=indptr[1:])
                 delta = sparse.csr_matrix((change, r, indptr), shape=self._w.shape)
-            added = delta @ self._FL
+                added = self._FL.weighted(delta)
             width = self._sums.shape[1]
             self._sums += added[:, :width]
             self._lsums[0] += added[:, width:2 * width]
@@ -742,8 +744,8 @@ class Eips(Policy):
         at = np.flatnonzero(~done)
         self._cols = kept[at]
         if self._FL is not None:
-            self._FL = np.ascontiguousarray(self._FL[:, np.concatenate(
-                [at, width + at, 2 * width + at])])
+            self._FL = RowTable(np.ascontiguousarray(self._FL.rows[:, np.concatenate(
+                [at, width + at, 2 * width + at])]))
         self._frozen = None
         self._sums, self._pbar = self._sums[:, at], self._pbar[:, at]
         self._lsums = [sums[:, at] for sums in self._lsums]

@@ -1,0 +1,137 @@
+"""Products read in column tiles (box_core.row_sums) and BOX's posterior conditioned when
+read (contextual.DeferredPosterior) give the numbers of the plain computation, bit for bit:
+the product of the whole table, and conditioning at every try."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import sparse
+
+import box_core
+from box_core import Prior, contextual, row_sums
+from box_core.gaussian import GaussianPosterior
+from tests.matrices import well_conditioned
+from tests.test_contextual import problem
+from tests.test_eips_narrow import case as eips_narrow_case
+
+
+def weights(B, n, per_row, rng, order="sorted"):
+    """A CSR (B, n) of nonzero weights, ``per_row`` per row at distinct columns, in
+    ascending column order or in the order a neighbour list has them ("ranked")."""
+    cols = np.stack([rng.choice(n, per_row, replace=False) for _ in range(B)])
+    if order == "sorted":
+        cols.sort(axis=1)
+    data = rng.uniform(-1.0, 1.0, size=cols.shape) * 10.0 ** rng.integers(-8, 3, cols.shape)
+    indptr = np.arange(B + 1) * per_row
+    return sparse.csr_matrix((data.ravel(), cols.ravel(), indptr), shape=(B, n))
+
+
+@pytest.mark.parametrize("order", ["sorted", "ranked"])
+@pytest.mark.parametrize("B,per_row", [(1, 3), (7, 40), (60, 25), (200, 37)])
+def test_tiled_products_are_the_whole_tables_bit_for_bit(monkeypatch, order, B, per_row):
+    monkeypatch.setattr(row_sums, "TILE_BYTES", 8 * 50 * 7)  # 7 columns per tile
+    rng = np.random.default_rng(B * per_row)
+    rows = rng.normal(size=(50, 90)) * np.exp(rng.normal(size=(50, 90)) * 5)
+    rows[rng.random(rows.shape) < 0.4] = 0.0
+    table = row_sums.RowTable(rows)
+    W = weights(B, 50, per_row, rng, order)
+    got = table.weighted(W)
+    assert got.shape == (B, 90)
+    np.testing.assert_array_equal(got, np.asarray(W @ rows))
+    assert (table._tiles is not None) == (W.nnz > 50)  # tiles only past a row per nonzero
+
+
+def test_a_table_narrower_than_a_tile_is_never_tiled():
+    rng = np.random.default_rng(0)
+    rows = rng.normal(size=(40, 30))
+    table = row_sums.RowTable(rows)
+    W = weights(100, 40, 20, rng)
+    np.testing.assert_array_equal(table.weighted(W), np.asarray(W @ rows))
+    assert table._tiles is None
+
+
+def contextual_case():
+    S, F, T, C, X = problem(40, 12, 3, seed=2)
+    return S, dict(times=T, feasible=F, checks=C, instance_features=X,
+                   params={"contextual_capped": {"k": 6}})
+
+
+def eips_case():  # one whose weight changes take the sparse product (most are dense)
+    return eips_narrow_case("feasible")
+
+
+@pytest.mark.parametrize("name,make", [("contextual_capped", contextual_case),
+                                       ("eips", eips_case)])
+def test_evaluations_are_the_same_whatever_the_tiles(monkeypatch, name, make):
+    # tiles of 3 columns against the default, which is one tile at this size: the same
+    # orders and times; and the tiled path did run
+    S, kwargs = make()
+    args = dict(selectors=(name,), measure_overhead=False, **kwargs)
+    plain = box_core.loocv(S, **args)
+    monkeypatch.setattr(row_sums, "TILE_BYTES", 8 * S.shape[0] * 3)
+    tiled_calls = []
+    weighted = row_sums.RowTable.weighted
+
+    def counted(self, W):
+        tiled_calls.append(W.nnz > self.rows.shape[0])
+        return weighted(self, W)
+
+    monkeypatch.setattr(row_sums.RowTable, "weighted", counted)
+    tiled = box_core.loocv(S, **args)
+    assert any(tiled_calls)
+    for field in ("order", "first_feasible_step", "first_feasible_planning_time",
+                  "best_score"):
+        np.testing.assert_array_equal(getattr(tiled, field)[name],
+                                      getattr(plain, field)[name], err_msg=field)
+
+
+def test_a_deferred_posterior_conditions_on_the_queue_when_read():
+    # the same observations, paused tries and batch changes, read at a few points: the
+    # deferred posterior's numbers are the eager one's, and nothing is conditioned before
+    # a read
+    D = well_conditioned(50, 9, seed=4)
+    prior = Prior.fit(D)
+    rows = np.array([2, 11, 30, 41])
+    eager = GaussianPosterior(prior.folds(rows), capacity=2)
+    inner = GaussianPosterior(prior.folds(rows), capacity=2)
+    deferred = contextual.DeferredPosterior(inner)
+    np.testing.assert_array_equal(deferred.inert, eager.inert)
+    rng = np.random.default_rng(1)
+    live = rows.copy()
+    for step in range(7):
+        cols = rng.permutation(9)[:live.size]
+        skip = rng.random(live.size) < 0.3 if step % 2 else None
+        for post in (eager, deferred):
+            post.observe(cols, D[live, cols], skip=skip)
+        assert inner.t == 0 or step > 3  # queued until the first read (below)
+        if step == 3:
+            np.testing.assert_array_equal(deferred.mean, eager.mean)
+            assert inner.t == 4
+        if step == 4:
+            for post in (eager, deferred):
+                post.keep(np.array([0, 2, 3]))
+            live = live[[0, 2, 3]]
+    np.testing.assert_array_equal(deferred.mean, eager.mean)
+    np.testing.assert_array_equal(deferred.var, eager.var)
+    np.testing.assert_array_equal(deferred.std(), eager.std())
+    np.testing.assert_array_equal(deferred.scale, eager.scale)
+
+
+def test_runs_to_the_first_plan_condition_box_only_where_its_bounds_are_read(monkeypatch):
+    # CONTEXTUAL reads BOX's bounds before a plan only where no candidate has a positive
+    # rate: a run that stops at the first plan conditions only the tries before such reads
+    S, F, T, C, X = problem(40, 12, 3, seed=3)
+    observed = []
+    observe = GaussianPosterior.observe
+    monkeypatch.setattr(GaussianPosterior, "observe",
+                        lambda self, *a, **k: observed.append(1) or observe(self, *a, **k))
+    args = dict(times=T, feasible=F, instance_features=X, selectors=("contextual",),
+                params={"contextual": {"k": 6, "select_features": 0}},
+                measure_overhead=False)
+    first = box_core.loocv(S, until_feasible=True, **args)
+    assert not observed
+    full = box_core.loocv(S, **args)
+    assert observed  # after the first plan BOX chooses: its posterior is conditioned
+    np.testing.assert_array_equal(first.first_feasible_step["contextual"],
+                                  full.first_feasible_step["contextual"])
