@@ -55,7 +55,7 @@ import math
 
 import numpy as np
 
-from box_core.gaussian import argmax_sequence, argmax_untried
+from box_core.gaussian import argmax_sequence, argmax_untried, argmax_untried_at
 from box_core.prior import Prior
 from box_core.row_sums import RowTable
 from box_core.selectors import TIME_FLOOR, Box, FoldContext, TrainingOutcomes, register
@@ -148,35 +148,42 @@ class NeighbourModel:
         self._mass = self._w.sum(axis=1)
         self.m = m
 
-    def _block(self, a, i):
+    def _block(self, a, i, rows=None):
         at = self._blocks.index(i)
-        return a[:, at * self.m:(at + 1) * self.m]
+        if rows is None:
+            return a[:, at * self.m:(at + 1) * self.m]
+        return a[rows, at * self.m:(at + 1) * self.m]
 
-    def fresh(self) -> tuple[np.ndarray, np.ndarray]:
-        """(p, tau) of a first (capped) try of each column, (B, m) each."""
-        a, M = self.a, self._mass[:, None]
+    def _parts(self, rows):
+        """(a, mass + a, block) for instances ``rows`` (None: all)."""
+        M = self._mass if rows is None else self._mass[rows]
+        return self.a, M[:, None] + self.a, lambda a, i: self._block(a, i, rows)
+
+    def fresh(self, rows=None) -> tuple[np.ndarray, np.ndarray]:
+        """(p, tau) of a first (capped) try of each column, (B, m) each (of instances
+        ``rows`` only: the same numbers)."""
+        a, Ma, block = self._parts(rows)
         S, G = self._sums, self._mean
-        p = (self._block(S, 1) + a * self._block(G, 1)) / (M + a)
-        tau = (self._block(S, 4) + a * self._block(G, 4)) / (M + a)
+        p = (block(S, 1) + a * block(G, 1)) / Ma
+        tau = (block(S, 4) + a * block(G, 4)) / Ma
         return p, tau
 
-    def uncapped(self) -> tuple[np.ndarray, np.ndarray]:
+    def uncapped(self, rows=None) -> tuple[np.ndarray, np.ndarray]:
         """(p, tau) of a first try of each column without a cap, (B, m) each."""
-        a, M = self.a, self._mass[:, None]
+        a, Ma, block = self._parts(rows)
         S, G = self._sums, self._mean
-        p = (self._block(S, 1) + self._block(S, 2)
-             + a * (self._block(G, 1) + self._block(G, 2))) / (M + a)
-        tau = (self._block(S, 4) + self._block(S, 5)
-               + a * (self._block(G, 4) + self._block(G, 5))) / (M + a)
+        p = (block(S, 1) + block(S, 2) + a * (block(G, 1) + block(G, 2))) / Ma
+        tau = (block(S, 4) + block(S, 5) + a * (block(G, 4) + block(G, 5))) / Ma
         return p, tau
 
-    def resumed(self) -> tuple[np.ndarray, np.ndarray]:
+    def resumed(self, rows=None) -> tuple[np.ndarray, np.ndarray]:
         """(p, tau) of resuming a paused try of each column, (B, m) each (p = 0 where no
         training row went past the cap there)."""
-        a, S, G = self.a, self._sums, self._mean
-        ok = self._block(S, 2) + a * self._block(G, 2)
-        mass = ok + self._block(S, 3) + a * self._block(G, 3)
-        rest = self._block(S, 5) + a * self._block(G, 5)
+        a, _, block = self._parts(rows)
+        S, G = self._sums, self._mean
+        ok = block(S, 2) + a * block(G, 2)
+        mass = ok + block(S, 3) + a * block(G, 3)
+        rest = block(S, 5) + a * block(G, 5)
         with np.errstate(divide="ignore", invalid="ignore"):
             p = np.where(mass > 0, ok / mass, 0.0)
             tau = np.where(mass > 0, rest / mass, 0.0)
@@ -369,19 +376,39 @@ class Contextual(Box):
         if self._model is None:
             cols = argmax_untried(self.values(), ended, self.posterior.scale)
             return cols, allow
-        # candidates: a capped first try, an uncapped first try, resuming a paused try
-        rates = np.full((B, 3 * m), -np.inf)
-        rates[:, :m] = np.where(self.tried, -np.inf, _rate(*self._model.fresh()))
-        if math.isfinite(self.cap):
-            rates[:, m:2 * m] = np.where(self.tried, -np.inf, _rate(*self._model.uncapped()))
-        if self.paused.any():
-            rates[:, 2 * m:] = np.where(self.paused, _rate(*self._model.resumed()), -np.inf)
-        pick = np.argmax(rates, axis=1)
-        best = rates[np.arange(B), pick]
-        box = self.found | ~(best > 0)
-        cols = pick % m
-        allow[:] = np.where(pick < m, self.cap, math.inf)
-        if box.any():
+        # Before its first plan an instance takes the best of its candidates (a capped
+        # first try, an uncapped first try, resuming a paused try) where one has a positive
+        # rate; BOX chooses otherwise, and after the first plan.
+        cols = np.zeros(B, dtype=np.intp)
+        box = self.found.copy()
+        seek = np.flatnonzero(~self.found)
+        if seek.size:
+            rows = None if seek.size == B else seek  # all: the model's arrays as they are
+            tried = self.tried if rows is None else self.tried[rows]
+            paused = self.paused if rows is None else self.paused[rows]
+            rates = np.full((seek.size, 3 * m), -np.inf)
+            rates[:, :m] = np.where(tried, -np.inf, _rate(*self._model.fresh(rows)))
+            if math.isfinite(self.cap):
+                rates[:, m:2 * m] = np.where(tried, -np.inf,
+                                             _rate(*self._model.uncapped(rows)))
+            if paused.any():
+                rates[:, 2 * m:] = np.where(paused, _rate(*self._model.resumed(rows)),
+                                            -np.inf)
+            pick = np.argmax(rates, axis=1)
+            best = rates[np.arange(seek.size), pick]
+            cols[seek] = pick % m
+            allow[seek] = np.where(pick < m, self.cap, math.inf)
+            box[seek[~(best > 0)]] = True
+        post = self.posterior
+        if box.any() and post.slots is not None and not (box & ~self.found).any():
+            # BOX after the first plan, among the columns whose try has not ended: the
+            # posterior's live columns (paused tries are not observed), as BOX's own
+            # propose reads them
+            at = np.flatnonzero(box)
+            bounds = self._bounds(post.mean_slots[at], post.var_slots[at])
+            cols[at] = argmax_untried_at(bounds, post.dead_slots[at], post.scale[at],
+                                         post.slots[at])
+        elif box.any():
             values = self.values()[box]
             open_ = ~(self.tried[box] & ~self.paused[box])  # not ended
             fresh_left = (open_ & ~self.paused[box]).any(axis=1)
