@@ -21,7 +21,9 @@ baseline would take an hour on every row.  Variants:
   base     box_core at ``--baseline-rev`` (``''``: none), ``workers=1``, every row to the
            end (code from before ``until_best``); its default is the code before BOX's
            posterior dropped its tried columns and before the rows were split (the
-           workers of that code only move tuned selectors).
+           workers of that code only move tuned selectors).  ``--baseline-until-best``
+           and ``--baseline-workers 2`` run a revision that has ``until_best`` the way
+           ``two`` runs this checkout: the same work, the code's own difference.
 
 Every child has one thread per numeric library (``child_runs.ONE_THREAD``).  Printed:
 median wall seconds (over ``--repeats``), the peak memory of the measuring
@@ -136,6 +138,10 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--baseline-rev", default="8115288")
     parser.add_argument("--every", type=int, default=1)
+    parser.add_argument("--baseline-until-best", action="store_true",
+                        help="run the baseline as this checkout runs (until_best=True, "
+                             "--baseline-workers): for a revision that has until_best")
+    parser.add_argument("--baseline-workers", type=int, default=1)
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
@@ -162,7 +168,8 @@ def main() -> int:
         base = (export_revision(args.baseline_rev, Path(tmp) / "base", ("box_core",))
                 if args.baseline_rev else None)
         if base is not None:
-            variants["base"] = (base, dict(common, workers=1, until_best=False))
+            variants["base"] = (base, dict(common, workers=args.baseline_workers,
+                                           until_best=args.baseline_until_best))
         runs = {v: [] for v in variants}
         names = list(variants)
         for r in range(args.repeats):  # the variants' order rotates: drift hits all alike
@@ -184,7 +191,7 @@ def main() -> int:
         reference = "base" if "base" in runs else "one"
         ref_wall = statistics.median(r["wall"] for r in runs[reference])
         label = {"two": "this checkout, workers=2", "one": "this checkout, workers=1",
-                 "base": f"baseline {args.baseline_rev}, workers=1"}
+                 "base": f"baseline {args.baseline_rev}, workers={args.baseline_workers}"}
         print(f"  {'variant':<36}{'wall s':>9}{'peak MiB':>10}{'2nd MiB':>9}{'/ ' + reference:>9}"
               "  identical")
         for v, rs in runs.items():
