@@ -252,6 +252,8 @@ class DeferredPosterior:
         self._queue.append((np.array(folds),))
 
     def __getattr__(self, name):
+        if name.startswith("__") or "_posterior" not in self.__dict__:
+            raise AttributeError(name)  # copy and pickle look up hooks on a bare object
         post = self.__dict__["_posterior"]
         queue = self.__dict__["_queue"]
         for call in queue:

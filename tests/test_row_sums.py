@@ -4,6 +4,9 @@ the product of the whole table, and conditioning at every try."""
 
 from __future__ import annotations
 
+import copy
+import pickle
+
 import numpy as np
 import pytest
 from scipy import sparse
@@ -116,6 +119,18 @@ def test_a_deferred_posterior_conditions_on_the_queue_when_read():
     np.testing.assert_array_equal(deferred.var, eager.var)
     np.testing.assert_array_equal(deferred.std(), eager.std())
     np.testing.assert_array_equal(deferred.scale, eager.scale)
+
+
+def test_a_deferred_posterior_copies_and_pickles_with_its_queue():
+    D = well_conditioned(30, 6, seed=1)
+    prior = Prior.fit(D)
+    rows = np.array([1, 2])
+    eager = GaussianPosterior(prior.folds(rows))
+    deferred = contextual.DeferredPosterior(GaussianPosterior(prior.folds(rows)))
+    for post in (eager, deferred):
+        post.observe(np.array([0, 3]), np.array([0.1, -0.2]))
+    for other in (copy.deepcopy(deferred), pickle.loads(pickle.dumps(deferred))):
+        np.testing.assert_array_equal(other.mean, eager.mean)
 
 
 def test_runs_to_the_first_plan_condition_box_only_where_its_bounds_are_read(monkeypatch):
