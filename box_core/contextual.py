@@ -52,6 +52,7 @@ tuned by :func:`tune` on training rows only; see its docstring and docs/box_core
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import numpy as np
 
@@ -241,7 +242,7 @@ class DeferredPosterior:
 
     def __init__(self, posterior):
         self._posterior = posterior
-        self._queue: list[tuple] = []
+        self._queue: deque[tuple] = deque()
         self.inert = posterior.inert
 
     def observe(self, cols, scores, skip=None) -> None:
@@ -256,12 +257,12 @@ class DeferredPosterior:
             raise AttributeError(name)  # copy and pickle look up hooks on a bare object
         post = self.__dict__["_posterior"]
         queue = self.__dict__["_queue"]
-        for call in queue:
+        while queue:  # each call leaves the queue as it is applied: none applied twice
+            call = queue.popleft()
             if len(call) == 1:
                 post.keep(call[0])
             else:
                 post.observe(call[0], call[1], skip=call[2])
-        queue.clear()
         return getattr(post, name)
 
 

@@ -91,6 +91,7 @@ class GaussianPosterior:
         self._var = self.prior_var.copy()
         self.eps = prior.jitter()
         self.scale = np.sqrt(np.maximum(self.prior_var.max(axis=1), 0.0))
+        # fixed from here on (contextual.DeferredPosterior reads it without conditioning)
         self.inert = prior.inert() if skip_inert else np.zeros(m, dtype=bool)
         self.t = 0
         self._layout(size)

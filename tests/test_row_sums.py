@@ -12,8 +12,10 @@ import pytest
 from scipy import sparse
 
 import box_core
-from box_core import Prior, contextual, row_sums
+from box_core import Prior, contextual, row_sums, selectors
 from box_core.gaussian import GaussianPosterior
+from box_core.selectors import TrainingOutcomes
+from box_core.tries import FAILED, FEASIBLE, PAUSED
 from tests.matrices import well_conditioned
 from tests.test_contextual import problem
 from tests.test_eips_narrow import case as eips_narrow_case
@@ -30,17 +32,19 @@ def weights(B, n, per_row, rng, order="sorted"):
     return sparse.csr_matrix((data.ravel(), cols.ravel(), indptr), shape=(B, n))
 
 
+@pytest.mark.parametrize("width", [90, 85])  # the last tile 6 columns wide, or 1
 @pytest.mark.parametrize("order", ["sorted", "ranked"])
 @pytest.mark.parametrize("B,per_row", [(1, 3), (7, 40), (60, 25), (200, 37)])
-def test_tiled_products_are_the_whole_tables_bit_for_bit(monkeypatch, order, B, per_row):
+def test_tiled_products_are_the_whole_tables_bit_for_bit(monkeypatch, width, order, B,
+                                                         per_row):
     monkeypatch.setattr(row_sums, "TILE_BYTES", 8 * 50 * 7)  # 7 columns per tile
     rng = np.random.default_rng(B * per_row)
-    rows = rng.normal(size=(50, 90)) * np.exp(rng.normal(size=(50, 90)) * 5)
+    rows = rng.normal(size=(50, width)) * np.exp(rng.normal(size=(50, width)) * 5)
     rows[rng.random(rows.shape) < 0.4] = 0.0
     table = row_sums.RowTable(rows)
     W = weights(B, 50, per_row, rng, order)
     got = table.weighted(W)
-    assert got.shape == (B, 90)
+    assert got.shape == (B, width)
     np.testing.assert_array_equal(got, np.asarray(W @ rows))
     assert (table._tiles is not None) == (W.nnz > 50)  # tiles only past a row per nonzero
 
@@ -150,3 +154,65 @@ def test_runs_to_the_first_plan_condition_box_only_where_its_bounds_are_read(mon
     assert observed  # after the first plan BOX chooses: its posterior is conditioned
     np.testing.assert_array_equal(first.first_feasible_step["contextual"],
                                   full.first_feasible_step["contextual"])
+
+
+@pytest.mark.parametrize("name,params", [
+    ("contextual", {"k": 6, "select_features": 0}),
+    ("contextual_capped", {"k": 6, "cap_quantile": 0.5, "select_features": 0}),
+])
+@pytest.mark.parametrize("constant", [0, 3])
+def test_box_after_the_first_plan_at_the_posteriors_columns_is_the_full_choice(
+        monkeypatch, name, params, constant):
+    # With forbidden columns and constant (inert) ones, paused tries and resumptions: the
+    # choice read at the posterior's own columns (the default, which forgets the columns
+    # tried) gives the orders of the posterior that keeps every column, where the choice
+    # is made over all m columns.
+    S, F, T, C, X = problem(40, 24, 3, seed=5)
+    S[:, :constant], F[:, :constant] = np.nan, False
+    rng = np.random.default_rng(6)
+    hide = rng.random(S.shape) < 0.15
+    hide[:, -1] = False  # every row keeps a column
+    args = dict(times=T, feasible=F, checks=C, instance_features=X, selectors=(name,),
+                params={name: params}, forbidden=hide, measure_overhead=False)
+    read_at = []
+    at = contextual.argmax_untried_at
+    monkeypatch.setattr(contextual, "argmax_untried_at",
+                        lambda *a: read_at.append(1) or at(*a))
+    default = box_core.loocv(S, **args)
+    monkeypatch.setattr(selectors, "_posterior", lambda ctx, drop: GaussianPosterior(
+        ctx.prior, capacity=ctx.horizon or 16, skip_inert=ctx.skip_inert,
+        drop_observed=False))
+    kept = len(read_at)
+    full = box_core.loocv(S, **args)
+    assert kept and len(read_at) == kept  # the default read the columns; the other did not
+    for field in ("order", "first_feasible_step", "first_feasible_planning_time",
+                  "best_score"):
+        np.testing.assert_array_equal(getattr(default, field)[name],
+                                      getattr(full, field)[name], err_msg=field)
+
+
+def test_a_weight_change_adds_what_the_whole_batchs_product_adds():
+    # NeighbourModel.observe multiplies only the instances whose weights changed: their
+    # sums are what adding the product of every instance's changes (zero rows included)
+    # gives, and the others' sums stay as they were
+    S, F, T, C, X = problem(40, 12, 3, seed=4)
+    Dn = np.nan_to_num(S)
+    rows = np.arange(8)
+    outcomes = TrainingOutcomes.of(Dn, F, T, rows, C)
+    model = contextual.NeighbourModel(outcomes, X, X[rows], k=6, mismatch=0.1,
+                                      prior_rows=1.0, cap=float(np.median(C)))
+    rng = np.random.default_rng(0)
+    moved = 0
+    for _ in range(4):
+        sums, weights_before = model._sums.copy(), model._w.copy()
+        who = np.flatnonzero(rng.random(8) < 0.6)
+        cols = rng.integers(0, 12, size=who.size)
+        outcome = rng.choice([FAILED, FEASIBLE, PAUSED], size=who.size)
+        model.observe(who, cols, outcome, np.zeros(who.size, dtype=bool))
+        change = model._w - weights_before
+        moved += int((change != 0).any(axis=1).sum())
+        full = sparse.csr_matrix((change[change != 0], model._nb[change != 0],
+                                  np.concatenate([[0], np.cumsum((change != 0).sum(1))])),
+                                 shape=(8, 40))
+        np.testing.assert_array_equal(model._sums, sums + np.asarray(full @ model._A.rows))
+    assert 0 < moved < 4 * 8  # some instances changed, not all of them every time
