@@ -309,6 +309,7 @@ class Contextual(Box):
     defaults = {"k": None, "mismatch": 0.1, "prior_rows": 1.0, "c": 1.96,
                 "select_features": 1}
     needs_outcomes = True
+    shares_tables = True
     #: settings :func:`tune` chooses when not given
     tuned: tuple[str, ...] = ("k",)
 

@@ -110,6 +110,10 @@ class Policy:
     needs_features: ClassVar[bool] = False
     needs_truth: ClassVar[bool] = False
     needs_outcomes: ClassVar[bool] = False
+    #: Whether each step reads a table the whole batch shares (EIPS's training outcomes,
+    #: CONTEXTUAL's neighbours' outcomes): a step then costs about as much for one
+    #: instance as for many, so leave-one-out runs such a policy in larger batches.
+    shares_tables: ClassVar[bool] = False
 
     def __init__(self, ctx: FoldContext):
         self.ctx = ctx
@@ -570,6 +574,7 @@ class Eips(Policy):
 
     defaults = {"prior_rows": 1.0, "mismatch": 0.1, "time_rows": 5.0}
     needs_outcomes = True
+    shares_tables = True
 
     def __init__(self, ctx: FoldContext, prior_rows: float = 1.0, mismatch: float = 0.1,
                  time_rows: float = 5.0):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import pickle
+import sys
 
 import numpy as np
 import pytest
@@ -216,3 +217,40 @@ def test_a_weight_change_adds_what_the_whole_batchs_product_adds():
                                  shape=(8, 40))
         np.testing.assert_array_equal(model._sums, sums + np.asarray(full @ model._A.rows))
     assert 0 < moved < 4 * 8  # some instances changed, not all of them every time
+
+
+def test_policies_that_share_a_table_get_larger_batches_and_the_same_result(monkeypatch):
+    # with a budget of a few instances per batch, EIPS and CONTEXTUAL (shares_tables) run
+    # in batches SHARED_TABLE_BATCH_FACTOR times larger than BOX's; every result is what
+    # one batch of all rows gives
+    D, kwargs = eips_narrow_case("feasible")
+    X = np.random.default_rng(2).normal(size=(D.shape[0], 3))
+    names = ("box", "eips", "contextual")
+    args = dict(selectors=names, instance_features=X, until_best=True,
+                params={"contextual": {"k": 6, "select_features": 0}},
+                measure_overhead=False, **kwargs)
+    whole = box_core.loocv(D, **args)
+    loocv_module = sys.modules["box_core.loocv"]
+    per = selectors.Box.bytes_per_instance(D.shape[1], D.shape[1], D.shape[1])
+    monkeypatch.setattr(loocv_module, "MIN_BATCH_BYTES", 0)
+    monkeypatch.setattr(loocv_module, "BATCH_BYTES_PER_ENTRY", 2 * per / D.size)
+    sizes = {name: [] for name in names}
+    for name in names:
+        cls = selectors.SELECTORS[name]
+        init = cls.__init__
+
+        def counted(self, ctx, *a, _name=name, _cls=cls, _init=init, **k):
+            if type(self) is _cls:  # not the base class's part of another's
+                sizes[_name].append(ctx.size)
+            _init(self, ctx, *a, **k)
+
+        monkeypatch.setattr(cls, "__init__", counted)
+    split = box_core.loocv(D, **args)
+    factor = loocv_module.SHARED_TABLE_BATCH_FACTOR
+    assert max(sizes["box"]) == 2
+    assert max(sizes["eips"]) == max(sizes["contextual"]) == 2 * factor
+    for field in ("order", "first_feasible_step", "first_feasible_planning_time",
+                  "best_score"):
+        for name in names:
+            np.testing.assert_array_equal(getattr(split, field)[name],
+                                          getattr(whole, field)[name], err_msg=field)
