@@ -221,8 +221,9 @@ def test_a_weight_change_adds_what_the_whole_batchs_product_adds():
 
 def test_policies_that_share_a_table_get_larger_batches_and_the_same_result(monkeypatch):
     # with a budget of a few instances per batch, EIPS and CONTEXTUAL (shares_tables) run
-    # in batches SHARED_TABLE_BATCH_FACTOR times larger than BOX's; every result is what
-    # one batch of all rows gives
+    # in batches SHARED_TABLE_BATCH_FACTOR times larger than BOX's where rows stop at
+    # their best, and in BOX's through every try; every result is what one batch of all
+    # rows gives
     D, kwargs = eips_narrow_case("feasible")
     X = np.random.default_rng(2).normal(size=(D.shape[0], 3))
     names = ("box", "eips", "contextual")
@@ -249,6 +250,10 @@ def test_policies_that_share_a_table_get_larger_batches_and_the_same_result(monk
     factor = loocv_module.SHARED_TABLE_BATCH_FACTOR
     assert max(sizes["box"]) == 2
     assert max(sizes["eips"]) == max(sizes["contextual"]) == 2 * factor
+    for name in names:
+        sizes[name].clear()
+    box_core.loocv(D, **{**args, "until_best": False})  # every try: W's plain budget
+    assert max(sizes["eips"]) == max(sizes["contextual"]) == max(sizes["box"]) == 2
     for field in ("order", "first_feasible_step", "first_feasible_planning_time",
                   "best_score"):
         for name in names:
