@@ -152,9 +152,10 @@ def main() -> int:
     from pipeline.store import StoreError
 
     selectors = [s.strip() for s in args.selectors.split(",") if s.strip()]
-    if args.every < 1:
-        print(f"bench_loocv_store: --every must be 1 or more, got {args.every}",
-              file=sys.stderr)
+    if args.every < 1 or args.baseline_workers < 1:
+        name, value = (("--every", args.every) if args.every < 1
+                       else ("--baseline-workers", args.baseline_workers))
+        print(f"bench_loocv_store: {name} must be 1 or more, got {value}", file=sys.stderr)
         return 2
     with tempfile.TemporaryDirectory() as tmp:
         try:
