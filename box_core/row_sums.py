@@ -5,8 +5,9 @@ sparse (B, n) weight matrix with a dense (n, w) table.  scipy's CSR product read
 nonzero weight, one whole row of the table.  At the pick_place shape (a few thousand
 columns, tens of MB) those rows come from memory, and a batch's product touches most of
 them many times over.  Read in column tiles of a few MB instead, each tile stays in cache
-for every nonzero after the first: about 2.5× faster for a product with as many nonzeros
-as 1000 instances × 80 neighbours (``benchmarks/bench_loocv_paper.py``).
+for every nonzero after the first: 2.5× faster for a product with as many nonzeros as 1000
+instances × 80 neighbours on a 1350 × 5000 table, break-even at about two nonzeros per
+table row, slower below (``benchmarks/bench_row_sums.py``).
 
 Every entry of the result is the same sum, in the same order (the nonzeros of its row,
 in the CSR layout's order), as the product with the whole table: tiling changes which
@@ -19,14 +20,16 @@ import numpy as np
 
 #: Bytes of one column tile: a few tiles fit in the 2-core machine's L2 + L3
 TILE_BYTES = 6 << 20
+#: Tiles are used past this many nonzero weights per row of the table
+TILES_PAST = 2
 
 
 class RowTable:
     """A dense (n, w) table, ``rows``, and its products with sparse weights.
 
-    A product with no more nonzeros than the table has rows reads each row about once,
-    so it reads the whole table (the tiles' strided reads would only cost more); a larger
-    one runs over column tiles, made at its first use."""
+    A product with at most :data:`TILES_PAST` nonzeros per table row reads each row a
+    few times at most, so it reads the whole table (the tiles' strided reads would only
+    cost more); a larger one runs over column tiles, made at its first use."""
 
     def __init__(self, rows: np.ndarray):
         self.rows = rows
@@ -40,7 +43,7 @@ class RowTable:
         """``weights @ rows`` as a dense (B, w) array, for a scipy CSR (B, n) ``weights``."""
         n, w = self.rows.shape
         width = max(1, TILE_BYTES // (8 * max(n, 1)))
-        if width >= w or weights.nnz <= n:
+        if width >= w or weights.nnz <= TILES_PAST * n:
             return np.asarray(weights @ self.rows)
         if self._tiles is None:
             self._tiles = [(start, np.ascontiguousarray(self.rows[:, start:start + width]))

@@ -47,7 +47,8 @@ def test_tiled_products_are_the_whole_tables_bit_for_bit(monkeypatch, width, ord
     got = table.weighted(W)
     assert got.shape == (B, width)
     np.testing.assert_array_equal(got, np.asarray(W @ rows))
-    assert (table._tiles is not None) == (W.nnz > 50)  # tiles only past a row per nonzero
+    # tiles only past TILES_PAST nonzeros per table row
+    assert (table._tiles is not None) == (W.nnz > row_sums.TILES_PAST * 50)
 
 
 def test_a_table_narrower_than_a_tile_is_never_tiled():
@@ -82,7 +83,7 @@ def test_evaluations_are_the_same_whatever_the_tiles(monkeypatch, name, make):
     weighted = row_sums.RowTable.weighted
 
     def counted(self, W):
-        tiled_calls.append(W.nnz > self.rows.shape[0])
+        tiled_calls.append(W.nnz > row_sums.TILES_PAST * self.rows.shape[0])
         return weighted(self, W)
 
     monkeypatch.setattr(row_sums.RowTable, "weighted", counted)
