@@ -138,9 +138,14 @@ class NeighbourModel:
             outcomes.memo["neighbour tables"] = _entry_tables(F, T, outcomes.checks, cap)
         self._cls, self._blocks, self._A, total = outcomes.memo["neighbour tables"]
         own = held >= 0
-        self._mean = np.repeat((total / n)[None, :], B, axis=0)
-        if own.any():
-            self._mean[own] = (total - self._A.rows[held[own]]) / (n - 1)
+        if own.all():  # every instance a training row (the tuning's inner runs)
+            self._mean = self._A.rows[held]
+            np.subtract(total, self._mean, out=self._mean)
+            self._mean /= n - 1
+        else:
+            self._mean = np.repeat((total / n)[None, :], B, axis=0)
+            if own.any():
+                self._mean[own] = (total - self._A.rows[held[own]]) / (n - 1)
         from scipy import sparse  # here: see box_core.stats on import times
 
         rows = np.repeat(np.arange(B), k)
@@ -285,8 +290,13 @@ def _entry_tables(F, T, C, cap):
     # 2 plans after it, 3 fails after it
     cls = np.where(within, F.astype(np.int8), np.where(F, 2, 3).astype(np.int8))
     kept = (1, 4) if math.isinf(cap) else (1, 2, 3, 4, 5)
-    blocks = {1: cls == 1, 2: cls == 2, 3: cls == 3, 4: T * share, 5: T * (1.0 - share)}
-    A = np.concatenate([blocks[b].astype(np.float64) for b in kept], axis=1)
+    A = np.empty((n, len(kept) * m))
+    for at, b in enumerate(kept):  # each block written in place: tens of MB each
+        block = A[:, at * m:(at + 1) * m]
+        if b <= 3:
+            np.equal(cls, b, out=block, casting="unsafe")
+        else:
+            np.multiply(T, share if b == 4 else 1.0 - share, out=block)
     return cls, kept, RowTable(A), A.sum(axis=0)
 
 
@@ -436,8 +446,11 @@ class Contextual(Box):
         self.posterior.observe(cols, scores, skip=None if ended.all() else ~ended)
         self._open -= ~self.posterior.inert[cols] & ended
         if self._model is not None:
-            before = np.flatnonzero(~self.found)
-            self._model.observe(before, cols[before], outcome[before], resumed[before])
+            # the model is read only for instances still without a plan: one that planned
+            # now is not updated (most of its neighbours disagree with a plan, so this
+            # left-out update was about a third of the model's work)
+            seeking = np.flatnonzero(~self.found & (outcome != FEASIBLE))
+            self._model.observe(seeking, cols[seeking], outcome[seeking], resumed[seeking])
         self.found |= outcome == FEASIBLE
 
     def keep(self, folds: np.ndarray) -> None:
@@ -566,7 +579,7 @@ class _InnerRuns:
         policy = cls(self.ctx, ranks=self.ranks, **kwargs)
         D, F, T, C = self.truth
         m = F.shape[1]
-        trace = simulate(policy, D, F, T, C, m, until_feasible=True)
+        trace = simulate(policy, D, F, T, C, m, until_feasible=True, full_width=False)
         return float(trace.cost.sum(axis=1).mean()) if trace.cost.size else 0.0
 
     def best(self, cls, name, grid, kwargs, known=None) -> tuple:

@@ -38,7 +38,7 @@ from box_core.selectors import (
     standardise,
 )
 from box_core.summary import Summary, summarize
-from box_core.tries import FAILED, FEASIBLE, TryTrace, simulate
+from box_core.tries import FAILED, FEASIBLE, TryTrace, empty_trace, padded, simulate
 
 DEFAULT_SELECTORS = ("box", "static", "rand", "doo")
 
@@ -607,10 +607,7 @@ def _merged(size: int, *parts) -> TryTrace:
     """One trace of ``size`` rows from (positions, trace of those rows) ``parts``, padded
     (-1 / 0 / -1) to the widest, and where no part has the row."""
     width = max((tr.order.shape[1] for _, tr in parts), default=0)
-    out = _padded(TryTrace(order=np.zeros((size, 0), dtype=np.intp),
-                           allowance=np.zeros((size, 0)), cost=np.zeros((size, 0)),
-                           outcome=np.zeros((size, 0), dtype=np.int8),
-                           overhead=np.zeros((size, 0))), width)
+    out = empty_trace(size, width)
     for positions, tr in parts:
         w = tr.order.shape[1]
         for key in ("order", "allowance", "cost", "outcome", "overhead"):
@@ -625,25 +622,13 @@ def _take_rows(traces, settings, tuning_seconds, found, rows) -> None:
     for name, tr in theirs.items():
         mine = traces[name]
         width = max(mine.order.shape[1], tr.order.shape[1])
-        merged = _padded(mine, width)
+        merged = padded(mine, width)
         for key in ("order", "allowance", "cost", "outcome", "overhead"):
             getattr(merged, key)[rows, :tr.order.shape[1]] = getattr(tr, key)[rows]
         traces[name] = merged
         for key, values in their_settings[name].items():
             settings[name].setdefault(key, np.full_like(values, np.nan))[rows] = values[rows]
         tuning_seconds[name] = tuning_seconds.get(name, 0.0) + their_seconds[name]
-
-
-def _padded(trace: TryTrace, width: int) -> TryTrace:
-    """``trace`` widened to ``width`` tries with padding (-1 / 0 / -1)."""
-    B, w = trace.order.shape
-    pads = {"order": -1, "allowance": 0.0, "cost": 0.0, "outcome": -1, "overhead": 0.0}
-    out = {}
-    for key, pad in pads.items():
-        values = getattr(trace, key)
-        out[key] = np.full((B, width), pad, dtype=values.dtype)
-        out[key][:, :w] = values
-    return TryTrace(**out)
 
 
 @contextlib.contextmanager

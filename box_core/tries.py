@@ -58,9 +58,33 @@ class TryTrace:
     overhead: np.ndarray
 
 
+def padded(trace: TryTrace, width: int) -> TryTrace:
+    """``trace`` widened to ``width`` tries with padding (-1 / 0 / -1)."""
+    B, w = trace.order.shape
+    pads = {"order": -1, "allowance": 0.0, "cost": 0.0, "outcome": -1, "overhead": 0.0}
+    out = {}
+    for key, pad in pads.items():
+        values = getattr(trace, key)
+        out[key] = np.full((B, width), pad, dtype=values.dtype)
+        out[key][:, :w] = values
+    return TryTrace(**out)
+
+
+def empty_trace(rows: int, width: int = 0) -> TryTrace:
+    """A trace of ``rows`` instances and no tries, padded to ``width``."""
+    return padded(TryTrace(order=np.zeros((rows, 0), dtype=np.intp),
+                           allowance=np.zeros((rows, 0)), cost=np.zeros((rows, 0)),
+                           outcome=np.zeros((rows, 0), dtype=np.int8),
+                           overhead=np.zeros((rows, 0))), width)
+
+
+#: the tries a trace holds room for at first; it doubles as tries are made
+FIRST_WIDTH = 16
+
+
 def simulate(policy, scores, feasible, times, checks, ends: int, *,
              until_feasible: bool = False, measure: bool = False, done=None,
-             peak=None) -> TryTrace:
+             peak=None, full_width: bool = True) -> TryTrace:
     """Run ``policy`` (one with ``propose_tries``, ``record``, ``ended``, ``settled``,
     ``remaining`` and ``keep``, see :class:`box_core.contextual.Contextual`) against its B
     instances' true rows (``scores``, ``feasible``, ``times``, ``checks``: (B, m);
@@ -69,14 +93,16 @@ def simulate(policy, scores, feasible, times, checks, ends: int, *,
     plan; or where ``done(instances, found, peaked)`` says so, given whether each has found
     a plan and ended a try at a column of ``peak`` (B, m)).  Instances that stop leave the
     batch; a settled instance (no observation can change its later choices) gets its
-    remaining tries listed at once, uncapped."""
+    remaining tries listed at once, uncapped.
+
+    The trace is (B, 2 * the largest number of ended tries allowed) wide (each ended try
+    is at most two: a capped try and its resumption); with ``full_width=False`` only as
+    wide as the most tries made.  It grows as tries are made (a run that stops at the first
+    plan makes a few of its thousands allowed)."""
     B, m = feasible.shape
     limit = np.minimum(ends, m - policy.tried.sum(axis=1))  # ended tries per instance
     width = 2 * int(limit.max(initial=0))
-    trace = TryTrace(order=np.full((B, width), -1, dtype=np.intp),
-                     allowance=np.zeros((B, width)), cost=np.zeros((B, width)),
-                     outcome=np.full((B, width), -1, dtype=np.int8),
-                     overhead=np.zeros((B, width)))
+    trace = empty_trace(B, min(width, FIRST_WIDTH))
     granted = np.zeros((B, m))
     here = np.arange(B)  # the instance of each row of the policy's batch
     step = np.zeros(B, dtype=np.intp)  # tries made, per instance
@@ -86,10 +112,13 @@ def simulate(policy, scores, feasible, times, checks, ends: int, *,
 
     def note(inst, cols, allow, spent):
         """Simulate and write down one try of each instance ``inst``."""
+        nonlocal trace
         need = None if checks is None else checks[inst, cols]
         outcome, cost = outcome_of_try(need, granted[inst, cols], allow,
                                        feasible[inst, cols], times[inst, cols])
         at = step[inst]
+        if at.size and at.max() >= trace.order.shape[1]:
+            trace = padded(trace, min(width, 2 * trace.order.shape[1]))
         trace.order[inst, at] = cols
         trace.allowance[inst, at] = allow
         trace.cost[inst, at] = cost
@@ -140,4 +169,9 @@ def simulate(policy, scores, feasible, times, checks, ends: int, *,
             stop |= done(here, found[here], peaked[here])
     if not measure:
         trace.overhead[:] = 0.0
+    used = int(step.max(initial=0))
+    if full_width and trace.order.shape[1] < width:
+        return padded(trace, width)
+    if not full_width and trace.order.shape[1] > used:
+        return TryTrace(**{key: values[:, :used] for key, values in vars(trace).items()})
     return trace
