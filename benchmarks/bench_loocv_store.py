@@ -26,7 +26,8 @@ baseline would take an hour on every row.  Variants:
            ``two`` runs this checkout: the same work, the code's own difference.
 
 Every child has one thread per numeric library (``child_runs.ONE_THREAD``).  Printed:
-median wall seconds (over ``--repeats``), the peak memory of the measuring
+median wall seconds (over ``--repeats``) and their range, the median CPU seconds of both
+processes together (user and system), the peak memory of the measuring
 process and of its second process, the ratio to ``base``, and whether every variant's
 first feasible steps and planning times are those of ``base`` (or of ``one`` without a
 baseline) bit for bit, and its orders too as far as both go, the shorter one holding its
@@ -95,7 +96,7 @@ def child(job: dict) -> dict:
     # box evaluate stops each row once its first plan and its best score are in (what the
     # summary and the figures read); code from before that option runs every row to the end
     extra = {"until_best": True} if job["until_best"] else {}
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), _cpu_seconds()
     if job["every"] > 1:
         from box_core.loocv import _loocv
 
@@ -110,12 +111,20 @@ def child(job: dict) -> dict:
         result = module.loocv(data["scores"], selectors=tuple(job["selectors"]),
                               forbidden=forbidden, workers=job["workers"], seed=0,
                               measure_overhead=True, **given, **extra)
-    wall = time.perf_counter() - start
+    wall, cpu = time.perf_counter() - start, _cpu_seconds() - cpu
     np.savez(job["out"], **{f"{field}|{name}": getattr(result, field)[name]
                             for name in result.selectors for field in COMPARED})
-    return {"wall": wall,
+    return {"wall": wall, "cpu": cpu,
             "rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
             "rss_second": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024}
+
+
+def _cpu_seconds() -> float:
+    """User and system CPU seconds of this process and of its ended children (the second
+    process): less noisy than wall time on a shared machine, whose other load slows
+    every variant's wall time alike only on average."""
+    return sum(u.ru_utime + u.ru_stime for u in (resource.getrusage(resource.RUSAGE_SELF),
+                                                 resource.getrusage(resource.RUSAGE_CHILDREN)))
 
 
 def saved_matrix(store: str, into: Path) -> tuple[Path, tuple[int, int]]:
@@ -193,14 +202,16 @@ def main() -> int:
         ref_wall = statistics.median(r["wall"] for r in runs[reference])
         label = {"two": "this checkout, workers=2", "one": "this checkout, workers=1",
                  "base": f"baseline {args.baseline_rev}, workers={args.baseline_workers}"}
-        print(f"  {'variant':<36}{'wall s':>9}{'peak MiB':>10}{'2nd MiB':>9}{'/ ' + reference:>9}"
-              "  identical")
+        print(f"  {'variant':<36}{'wall s':>9}{'range':>14}{'cpu s':>8}{'peak MiB':>10}"
+              f"{'2nd MiB':>9}{'/ ' + reference:>9}  identical")
         for v, rs in runs.items():
             wall = statistics.median(r["wall"] for r in rs)
+            spread = f"{min(r['wall'] for r in rs):.1f}-{max(r['wall'] for r in rs):.1f}"
+            cpu = statistics.median(r["cpu"] for r in rs)
             same = all(agree(r["out"], runs[reference][0]["out"], plans, rows) for r in rs)
-            print(f"  {label[v]:<36}{wall:>9.1f}{max(r['rss'] for r in rs):>10.0f}"
-                  f"{max(r['rss_second'] for r in rs):>9.0f}{ref_wall / wall:>8.2f}x"
-                  f"  {'yes' if same else 'NO'}")
+            print(f"  {label[v]:<36}{wall:>9.1f}{spread:>14}{cpu:>8.1f}"
+                  f"{max(r['rss'] for r in rs):>10.0f}{max(r['rss_second'] for r in rs):>9.0f}"
+                  f"{ref_wall / wall:>8.2f}x  {'yes' if same else 'NO'}")
     if n * m >= 1500 * 1000 and args.every == 1:  # the target: the paper's largest matrices
         print("  target: <= 60 s on 2 cores at 1500 x 1000: " + (
             "met" if statistics.median(r["wall"] for r in runs["two"]) <= 60 else "not met"))
