@@ -320,6 +320,7 @@ class Contextual(Box):
                 "select_features": 1}
     needs_outcomes = True
     shares_tables = True
+    relative_cost = 3.1
     #: settings :func:`tune` chooses when not given
     tuned: tuple[str, ...] = ("k",)
 
@@ -468,6 +469,7 @@ class ContextualCapped(Contextual):
 
     defaults = {**Contextual.defaults, "cap_quantile": None}
     tuned = ("k", "cap_quantile")
+    relative_cost = 4.4
 
 
 def has_features(x) -> bool:

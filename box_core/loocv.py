@@ -17,6 +17,7 @@ import os
 import pickle
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field, replace
@@ -38,7 +39,7 @@ from box_core.selectors import (
     standardise,
 )
 from box_core.summary import Summary, summarize
-from box_core.tries import FAILED, FEASIBLE, TryTrace, empty_trace, padded, simulate
+from box_core.tries import FAILED, FEASIBLE, TryTrace, empty_trace, simulate
 
 DEFAULT_SELECTORS = ("box", "static", "rand", "doo")
 
@@ -157,11 +158,12 @@ def loocv(
     the longer of the traces and the time of every try a row may make.  With both flags a
     row stops at its first plan.
 
-    ``workers=2`` (or more) starts a second process: from 64 held-out rows on it takes the
-    second half of the rows of the selectors that tune nothing and half the tuning groups
-    of those that tune their settings (``contextual``, ``contextual_capped``: nested
-    leave-one-out); on fewer rows most of the tuned selectors' groups.  The result is the
-    same (each process measures its own selectors' overhead).
+    ``workers=2`` (or more) starts a second process that shares the work: each tuning group
+    of the selectors that tune their settings (``contextual``, ``contextual_capped``:
+    nested leave-one-out), and from 64 held-out rows on each half of the rows of every
+    other selector, is one piece, and each process takes the next piece the other has not
+    taken, so the one that finishes its pieces first takes more.  The result is the same
+    (each process measures its own selectors' overhead).
     """
     return _loocv(scores, times=times, feasible=feasible, selectors=selectors, k=k,
                   features=features, seed=seed, params=params, failure_rule=failure_rule,
@@ -173,13 +175,12 @@ def loocv(
 def _loocv(scores, *, times, feasible, selectors, k, features, seed, params, failure_rule,
            time_grid, measure_overhead, forbidden, rows=None, fast: bool = True,
            instance_features=None, checks=None, until_feasible: bool = False,
-           until_best: bool = False, workers=1, only=None, part=None, share=None):
+           until_best: bool = False, workers=1, claims=None):
     """:func:`loocv`; ``rows``: hold out only these rows (each still with the prior of
     all the others; the result's rows are these); ``fast=False``: the unoptimised path
     (every instance through every step, nothing skipped: the same result, slower);
-    ``only``, ``part``, ``share``: just the traces of these selectors, the tuned ones over
-    these tuning groups, or the others over these held-out positions (what a second
-    process returns)."""
+    ``claims``: the folder of a first process's pieces of work (:class:`_Claims`): just
+    the pieces this one takes (what a second process returns)."""
     again = partial(_loocv, scores, times=times, feasible=feasible, selectors=selectors,
                     k=k, features=features, seed=seed, params=params,
                     failure_rule=failure_rule, time_grid=time_grid,
@@ -204,7 +205,7 @@ def _loocv(scores, *, times, feasible, selectors, k, features, seed, params, fai
     return setup.evaluate(prior.folds, outcomes, rows, seed, time_grid, measure_overhead,
                           fast=fast, train=np.arange(n), tuning=tuning,
                           until_feasible=until_feasible, until_best=until_best,
-                          workers=workers, only=only, again=again, part=part, share=share)
+                          workers=workers, again=again, claims=claims)
 
 
 def holdout(
@@ -249,9 +250,8 @@ def holdout(
 def _holdout(scores, train, test, *, times, feasible, selectors, k, features, seed, params,
              failure_rule, time_grid, measure_overhead, forbidden, fast: bool = True,
              instance_features=None, checks=None, until_feasible: bool = False,
-             until_best: bool = False, workers=1, only=None, part=None, share=None):
-    """:func:`holdout`; ``fast=False``, ``only``, ``part`` and ``share`` as in
-    :func:`_loocv`."""
+             until_best: bool = False, workers=1, claims=None):
+    """:func:`holdout`; ``fast=False`` and ``claims`` as in :func:`_loocv`."""
     again = partial(_holdout, scores, train, test, times=times, feasible=feasible,
                     selectors=selectors, k=k, features=features, seed=seed, params=params,
                     failure_rule=failure_rule, time_grid=time_grid,
@@ -284,7 +284,7 @@ def _holdout(scores, train, test, *, times, feasible, selectors, k, features, se
     return setup.evaluate(lambda rows: prior.batch(rows.size), outcomes, test, seed,
                           time_grid, measure_overhead, fast=fast, train=train, tuning=tuning,
                           until_feasible=until_feasible, until_best=until_best,
-                          workers=workers, only=only, again=again, part=part, share=share)
+                          workers=workers, again=again, claims=claims)
 
 
 def _row_indices(rows, n: int, name: str) -> np.ndarray:
@@ -383,21 +383,16 @@ class _Setup:
     def evaluate(self, fold_priors, fold_outcomes, test, seed, time_grid,
                  measure, fast: bool = True, train=None, tuning=None,
                  until_feasible: bool = False, until_best: bool = False,
-                 workers: int = 1, only=None,
-                 again=None, part=None, share=None) -> LoocvResult:
+                 workers: int = 1, again=None, claims=None) -> LoocvResult:
         """Run every selector on the ``test`` rows; ``fold_priors(rows)`` and
         ``fold_outcomes(rows)`` give their priors and training outcomes, ``train`` the
         rows the folds train on (their instance features), ``tuning(test)`` the groups
         [(positions in ``test``, the rows to tune their settings on)].  ``fast=False``
         runs every instance through every step with no arithmetic skipped (the same
         result, up to the measured overhead; what the tests compare the fast path with).
-        ``only``: return just (traces, settings, tuning seconds) of these selectors, the
-        tuned ones over the tuning groups ``part`` (indices into ``tuning(test)``; None:
-        all); ``share``: just the traces of ``only`` (selectors that tune nothing) over
-        these positions of ``test``.  ``workers`` >= 2: most of the tuned selectors'
-        groups come from ``again(only=..., part=...)`` in a second process
-        (:func:`_shares`); where no selector tunes, the second half of the rows comes from
-        ``again(only=..., share=...)`` (:func:`_halves`)."""
+        ``workers`` >= 2: ``again(workers=..., claims=folder)`` in a second process shares
+        the pieces of work (:func:`_pieces`); ``claims``: this is that second process,
+        which returns the pieces it took."""
         D, T, feas, k = self.D[test], self.T[test], self.feas[test], self.k
         hidden = None if self.forbidden is None else self.forbidden[test]
         allowed = D if hidden is None else np.where(hidden, -np.inf, D)
@@ -411,24 +406,28 @@ class _Setup:
                        query=None if self.X is None else self.X[test],
                        until_feasible=until_feasible, until_best=until_best, peak=peak,
                        hopeless=hopeless)
-        names = self.names if only is None else tuple(only)
-        tuned = [n for n in names if issubclass(self.classes[n], Contextual)]
-        if share is not None:  # a second process's rows
-            return self._traces(names, folds.restrict(share), tuning, test, measure, fast)
-        plain = [n for n in names if n not in tuned]
-        halves = _halves(test.size, plain, workers if again is not None else 1)
-        if halves is not None and only is None:
-            traces, settings, tuning_seconds = self._halved(
-                tuned, plain, halves, folds, tuning, test, measure, fast, again)
+        names = self.names
+        tuned = tuple(n for n in names if issubclass(self.classes[n], Contextual))
+        plain = tuple(n for n in names if n not in tuned)
+        pieces = _pieces(tuned, plain, tuning(test) if tuned else [], test.size,
+                         workers if again is not None else 1,
+                         lambda names: sum(self.classes[n].relative_cost for n in names))
+
+        def work(claims):
+            return {i: self._piece(piece, folds, measure, fast)
+                    for i, piece in enumerate(pieces) if claims is None or claims.take(i)}
+
+        if claims is not None:  # a second process
+            return work(_Claims(claims))
+        if workers < 2 or again is None or not _beside(tuned, test.size) or len(pieces) < 2:
+            done = work(None)
         else:
-            traces, settings, tuning_seconds = self._tuned_share(
-                names, tuned, folds, tuning, test, measure, fast, workers, again, part)
-        if only is not None:
-            return traces, settings, tuning_seconds
+            with tempfile.TemporaryDirectory(prefix="box-loocv-") as folder, \
+                    _second_process(partial(again, workers=workers, claims=folder)) as theirs:
+                done = work(_Claims(folder))
+                done.update(theirs.result())
+        traces, settings, tuning_seconds = _gathered(done.values(), test.size, tuned)
         traces = {n: traces[n] for n in names}  # the order selectors were given in
-        if until_feasible or until_best:
-            for trace in traces.values():
-                _end_where_done(trace, folds)
         if hidden is not None:
             feas = feas & ~hidden
         rows = np.arange(test.size)[:, None]
@@ -471,136 +470,108 @@ class _Setup:
             result.best_score[name] = _best_by_time(totals[name], scores, grid, self.d)
         return result
 
-    def _halved(self, tuned, plain, halves, folds, tuning, test, measure, fast, again):
-        """(traces, settings, tuning seconds) with a second process taking the second of
-        ``halves`` of the rows of the ``plain`` selectors (those that tune nothing) and
-        half the tuning groups of the ``tuned`` ones: each process gets about half of
-        every selector's work, whatever their shares of the whole."""
-        mine, theirs_rows = halves
-        groups = tuple(range(len(tuning(test)))) if tuned else ()
-        my_groups, their_groups = groups[:len(groups) // 2], groups[len(groups) // 2:]
-        calls = [partial(again, only=plain, share=theirs_rows)]
-        if tuned:
-            calls.append(partial(again, only=tuned, part=their_groups))
-        with _second_process(partial(_each, calls)) as theirs:
-            traces, settings, seconds = self._traces(plain, folds.restrict(mine), tuning,
-                                                     test, measure, fast)
-            if tuned:
-                own = self._traces(tuned, folds, tuning, test, measure, fast,
-                                   groups=my_groups)
-            found = theirs.result()
-        traces = {name: _merged(test.size, (mine, traces[name]), (theirs_rows, tr))
-                  for name, tr in found[0][0].items()}
-        if tuned:
-            _take_rows(*own, found[1],
-                       np.concatenate([tuning(test)[g][0] for g in their_groups]))
-            for into, part in zip((traces, settings, seconds), own, strict=True):
-                into.update(part)
-        return traces, settings, seconds
-
-    def _tuned_share(self, names, tuned, folds, tuning, test, measure, fast, workers,
-                     again, part):
-        """(traces, settings, tuning seconds) of ``names`` over every row, most of the
-        tuned selectors' groups from a second process where ``workers`` >= 2
-        (:func:`_shares`), or over the tuning groups ``part`` only (a second process's)."""
-        if part is not None:
-            mine, theirs_groups = tuple(part), ()
-        else:
-            mine, theirs_groups = _shares(names, tuned, len(tuning(test)) if tuned else 0,
-                                          workers if again is not None else 1)
-        call = None if not theirs_groups else partial(again, only=tuned, part=theirs_groups)
-        with _second_process(call) as theirs:
-            traces, settings, tuning_seconds = self._traces(
-                names, folds, tuning, test, measure, fast, groups=mine)
-            if theirs is not None:
-                _take_rows(traces, settings, tuning_seconds, theirs.result(),
-                           np.concatenate([tuning(test)[g][0] for g in theirs_groups]))
-        return traces, settings, tuning_seconds
-
-    def _traces(self, names, folds, tuning, test, measure, fast, groups=None):
-        """(traces, settings, tuning seconds) of the selectors ``names``, the tuned ones
-        over the tuning ``groups`` only (None: all; the trace's other rows are padding)."""
+    def _piece(self, piece, folds, measure, fast):
+        """(positions in the held-out rows, {selector: its trace of those rows}, settings
+        {selector: {setting: values}}, tuning seconds {selector: seconds}) of one of
+        :func:`_pieces`: a tuning group of the tuned selectors (they share what they tune
+        alike) or some rows of one selector that tunes nothing.  With ``until_feasible``
+        or ``until_best`` each trace ends where its row was done."""
+        names, positions, train = piece
+        part = folds.restrict(positions)
         run = _run_fast if fast else _run
-        traces, settings, tuning_seconds = {}, {}, {}
-        chosen, memo = None, {}  # memo: what selectors tuned alike share, per group
+        traces, settings, seconds, memo = {}, {}, {}, {}
         for name in names:
-            cls = self.classes[name]
-            params = dict(self.params.get(name, {}))
-            if issubclass(cls, Contextual):
-                if chosen is None:
-                    every = tuning(test)
-                    chosen = every if groups is None else [every[g] for g in groups]
-                traces[name], settings[name], tuning_seconds[name] = self._tuned(
-                    cls, params, folds, chosen, measure, run, memo)
+            cls, params = self.classes[name], dict(self.params.get(name, {}))
+            if train is None:
+                traces[name] = _uncapped(*run(cls, params, part, measure), part.T, part.feas)
             else:
-                order, overhead = run(cls, params, folds, measure)
-                traces[name] = _uncapped(order, overhead, folds.T, folds.feas)
-        return traces, settings, tuning_seconds
+                traces[name], settings[name], seconds[name] = self._tuned(
+                    cls, params, part, train, measure, run, memo)
+            if part.until_feasible or part.until_best:
+                _end_where_done(traces[name], part)
+        return positions, traces, settings, seconds
 
-    def _tuned(self, cls, params, folds, groups, measure, run, memo):
-        """A :class:`Contextual` selector over the held-out rows, each group with the
-        settings tuned on its training rows: (trace, {setting: (B,) values}, the tuning's
-        seconds, which the trace's overhead leaves out)."""
+    def _tuned(self, cls, params, folds, train, measure, run, memo):
+        """A :class:`Contextual` selector over the held-out rows of ``folds``, with the
+        settings tuned on the rows ``train``: (trace, {setting: (B,) values}, the tuning's
+        seconds, which the trace's overhead leaves out); ``memo``: what selectors tuned
+        alike on these rows share."""
         B = folds.Dn.shape[0]
-        parts, chosen, tuning_seconds = [], {}, 0.0
-        uncapped = {}  # groups with the same uncapped settings run as one batch
-        for g, (positions, rows) in enumerate(groups):
-            clock = time.perf_counter()
-            kwargs = tune(cls, self.Dn[rows], self.feas[rows], self.T[rows],
-                          None if self.checks is None else self.checks[rows],
-                          None if self.X is None else self.X[rows], params, folds.seed,
-                          None if self.forbidden is None else self.forbidden[rows],
-                          memo=memo.setdefault(g, {}))
-            tuning_seconds += time.perf_counter() - clock
-            # tries are capped only with features, stored checks and a finite cap
-            if math.isfinite(kwargs.get("cap", math.inf)) and self.X is not None:
-                parts.append((positions, _run_tries(cls, kwargs, folds.restrict(positions),
-                                                    measure)))
-            else:  # rows are independent: a batch of several groups gives each its trace
-                same = repr(sorted((key, np.asarray(v).tolist()) for key, v in kwargs.items()))
-                uncapped.setdefault(same, (kwargs, []))[1].append(positions)
-            for key, value in kwargs.items():  # numbers, and the features' mask
-                value = np.asarray(value, dtype=np.float64)
-                chosen.setdefault(key, np.full((B,) + value.shape, np.nan))[positions] = value
-        for kwargs, held in uncapped.values():
-            positions = np.sort(np.concatenate(held))
-            part = folds.restrict(positions)
-            parts.append((positions, _uncapped(*run(cls, kwargs, part, measure), part.T,
-                                               part.feas)))
-        return _merged(B, *parts), chosen, tuning_seconds
+        clock = time.perf_counter()
+        kwargs = tune(cls, self.Dn[train], self.feas[train], self.T[train],
+                      None if self.checks is None else self.checks[train],
+                      None if self.X is None else self.X[train], params, folds.seed,
+                      None if self.forbidden is None else self.forbidden[train], memo=memo)
+        tuning_seconds = time.perf_counter() - clock
+        # tries are capped only with features, stored checks and a finite cap
+        if math.isfinite(kwargs.get("cap", math.inf)) and self.X is not None:
+            trace = _run_tries(cls, kwargs, folds, measure)
+        else:
+            trace = _uncapped(*run(cls, kwargs, folds, measure), folds.T, folds.feas)
+        chosen = {key: np.repeat(np.asarray(value, dtype=np.float64)[None], B, axis=0)
+                  for key, value in kwargs.items()}  # numbers, and the features' mask
+        return trace, chosen, tuning_seconds
 
 
-def _shares(names, tuned, groups: int, workers: int) -> tuple[tuple, tuple]:
-    """(this process's, the second process's) tuning groups of the tuned selectors.
-
-    With one worker, or no tuned selector, this process takes them all.  Otherwise the
-    second process takes most of them and this one the rest beside the other selectors:
-    a fifth of the groups where there are others (on the main job's 1000 x 162 the
-    others take about 0.6 of the tuned ones' time, so both end together), half where the
-    tuned ones are all.  Every row's result is the same wherever it is computed."""
-    every = tuple(range(groups))
-    alone = len(tuned) == len(names)
-    mine = groups // (2 if alone else 5)
-    if workers < 2 or not tuned or (alone and not mine):
-        return every, ()
-    return every[groups - mine:], every[:groups - mine]
-
-
-#: Fewest held-out rows split between two processes (:func:`_halves`): below it a second
-#: process takes longer to start (about 1 s) than the rows it would take.
+#: Fewest held-out rows from which a second process shares the work of selectors that
+#: tune nothing (:func:`_beside`), each one's rows in halves (:func:`_pieces`): below it
+#: a second process takes longer to start (about 1 s) than the rows it would take.
 HALVES_MIN_ROWS = 64
 
 
-def _halves(rows: int, plain, workers: int):
-    """(this process's, the second process's) positions of the held-out rows of the
-    ``plain`` selectors (those that tune nothing; those that do are shared by tuning
-    group), where there are some, ``workers`` >= 2 and at least :data:`HALVES_MIN_ROWS`
-    rows; else None.  A row's trace is the same whichever rows it is computed with (its
-    own fold, its own seed), so the split changes no result."""
-    if workers < 2 or not plain or rows < HALVES_MIN_ROWS:
-        return None
-    positions = np.arange(rows)
-    return positions[:rows // 2], positions[rows // 2:]
+def _beside(tuned, rows: int) -> bool:
+    """Whether a second process is worth starting: for tuned selectors (nested
+    leave-one-out, seconds per tuning group), or from :data:`HALVES_MIN_ROWS` rows on."""
+    return bool(tuned) or rows >= HALVES_MIN_ROWS
+
+
+def _pieces(tuned, plain, groups, rows: int, workers: int, cost) -> list[tuple]:
+    """The work of an evaluation as pieces (selectors, positions of held-out rows, the
+    rows their settings are tuned on or None): each tuning group of the ``tuned``
+    selectors, and each ``plain`` selector's rows, in halves where a second process shares
+    the work and there are at least :data:`HALVES_MIN_ROWS`.  They are listed costliest
+    first by ``cost(selectors)`` per row (:attr:`Policy.relative_cost`), the order in
+    which processes take them, so that the last pieces are small.  A row's trace depends
+    on its own fold and seed only, so how the rows are cut changes no result."""
+    out = [(tuned, positions, train) for positions, train in groups]
+    everything = np.arange(rows)
+    cut = workers >= 2 and rows >= HALVES_MIN_ROWS
+    parts = (everything[:rows // 2], everything[rows // 2:]) if cut else (everything,)
+    out += [((name,), p, None) for name in plain for p in parts]
+    return sorted(out, key=lambda piece: -cost(piece[0]) * piece[1].size)  # stable
+
+
+@dataclass(frozen=True)
+class _Claims:
+    """Pieces of work two processes share through a folder: taking piece i creates the
+    file ``i`` there, which succeeds for one process only (``O_EXCL``), so each piece is
+    done once and a process that finishes its pieces early takes more."""
+
+    folder: str
+
+    def take(self, i: int) -> bool:
+        try:
+            os.close(os.open(os.path.join(self.folder, str(i)),
+                             os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+        except FileExistsError:
+            return False
+        return True
+
+
+def _gathered(done, size: int, tuned) -> tuple[dict, dict, dict]:
+    """(traces, settings, tuning seconds) of every selector over the ``size`` held-out rows
+    from the ``done`` pieces (:meth:`_Setup._piece`, from either process)."""
+    parts, settings, seconds = {}, {}, {name: 0.0 for name in tuned}
+    for positions, traces, chosen, spent in done:
+        for name, trace in traces.items():
+            parts.setdefault(name, []).append((positions, trace))
+        for name, values in chosen.items():
+            into = settings.setdefault(name, {})
+            for key, v in values.items():
+                into.setdefault(key, np.full((size,) + v.shape[1:], np.nan))[positions] = v
+        for name, spent_here in spent.items():
+            seconds[name] += spent_here
+    return {name: _merged(size, *p) for name, p in parts.items()}, settings, seconds
 
 
 def _merged(size: int, *parts) -> TryTrace:
@@ -613,22 +584,6 @@ def _merged(size: int, *parts) -> TryTrace:
         for key in ("order", "allowance", "cost", "outcome", "overhead"):
             getattr(out, key)[positions, :w] = getattr(tr, key)
     return out
-
-
-def _take_rows(traces, settings, tuning_seconds, found, rows) -> None:
-    """Merge the second process's (traces, settings, tuning seconds) ``found`` of the
-    held-out positions ``rows`` into this process's (which hold padding there)."""
-    theirs, their_settings, their_seconds = found
-    for name, tr in theirs.items():
-        mine = traces[name]
-        width = max(mine.order.shape[1], tr.order.shape[1])
-        merged = padded(mine, width)
-        for key in ("order", "allowance", "cost", "outcome", "overhead"):
-            getattr(merged, key)[rows, :tr.order.shape[1]] = getattr(tr, key)[rows]
-        traces[name] = merged
-        for key, values in their_settings[name].items():
-            settings[name].setdefault(key, np.full_like(values, np.nan))[rows] = values[rows]
-        tuning_seconds[name] = tuning_seconds.get(name, 0.0) + their_seconds[name]
 
 
 @contextlib.contextmanager
@@ -673,11 +628,6 @@ class _ChildResult:
         if not ok:
             raise value
         return value
-
-
-def _each(calls) -> list:
-    """The results of ``calls``, in order (one second process for several)."""
-    return [call() for call in calls]
 
 
 def _serve() -> None:
@@ -829,8 +779,10 @@ def _run(cls: type[Policy], kwargs, folds: _Folds, measure):
 
 
 #: The fast path's batches keep their per-step buffers (BOX's W) within this many bytes per
-#: entry of the score matrix, or MIN_BATCH_BYTES if that is more (the evaluation holds
-#: about as much per entry anyway: its inputs, and per selector the orders and times).
+#: entry of the held-out rows they run (a piece of work, :func:`_pieces`: with two
+#: processes each runs at most half of a selector's rows at once, so both together stay
+#: within it), or MIN_BATCH_BYTES if that is more (the evaluation holds about as much per
+#: entry anyway: its inputs, and per selector the orders and times).
 BATCH_BYTES_PER_ENTRY = 128
 MIN_BATCH_BYTES = 8 << 20
 #: ... times as much for a policy whose steps read a table the batch shares

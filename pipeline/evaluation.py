@@ -73,8 +73,8 @@ def selector_params(names, settings) -> dict:
 
 
 #: From this many entries on, a second process shares the evaluation (box_core.loocv's
-#: ``workers``: the tuned selectors, or where there are none half the rows): below it they
-#: take about as long as starting one (~1 s); at the main job's 162,000 about 15 s.
+#: ``workers``: the two take its pieces of work in turn): below it they take about as long
+#: as starting one (~1 s); at the main job's 162,000 about 15 s.
 BESIDE_ENTRIES = 50_000
 
 

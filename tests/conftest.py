@@ -52,3 +52,27 @@ def made(made_run):
     folder.  Tests must not modify it (copy it first)."""
     store, report, _ = made_run
     return store, report
+
+
+@pytest.fixture
+def second_takes_odd_pieces(monkeypatch):
+    """box_core.loocv's ``workers=2`` with this process taking only the even pieces of work
+    it gets to first, so the second process surely takes the odd ones (and any even one it
+    reaches first).  The list gets, for each second process, the pieces it returned."""
+    import importlib
+
+    module = importlib.import_module("box_core.loocv")  # the package's loocv is the function
+    real_take, real_result = module._Claims.take, module._ChildResult.result
+    taken = []
+
+    def evens(claims, i):
+        return i % 2 == 0 and real_take(claims, i)
+
+    def counted(child):
+        theirs = real_result(child)
+        taken.append(sorted(theirs))
+        return theirs
+
+    monkeypatch.setattr(module._Claims, "take", evens)
+    monkeypatch.setattr(module._ChildResult, "result", counted)
+    return taken

@@ -380,14 +380,18 @@ def test_a_skipped_observation_leaves_the_posterior_as_it_was(constant):
 @pytest.mark.parametrize("selectors", [("box", "contextual", "static", "contextual_capped"),
                                        ("contextual", "contextual_capped")])
 @pytest.mark.parametrize("n", [60, 70])
-def test_tuned_selectors_in_a_second_process_give_the_same_result(selectors, n):
-    """The second process tunes most of the 10 groups, this one the rest beside the other
-    selectors (half of them where all are tuned); from 64 rows on it takes half the
-    groups and the second half of the other selectors' rows: the results are merged."""
+def test_tuned_selectors_in_a_second_process_give_the_same_result(second_takes_odd_pieces,
+                                                                  selectors, n):
+    """The two processes share the pieces of work: each of the 10 tuning groups of the
+    tuned selectors, then the others' rows (in halves from 64 rows on); the second process
+    surely takes some of each kind, and the results merged are the one process's."""
     S, F, T, C, X = problem(n, 8, 2, 5)
     kw = dict(times=T, feasible=F, instance_features=X, checks=C, measure_overhead=False,
               selectors=selectors)
     one, two = box_core.loocv(S, **kw), box_core.loocv(S, **kw, workers=2)
+    plain = len(selectors) - 2
+    pieces = 10 + plain * (2 if n >= 64 else 1)
+    assert set(range(1, pieces, 2)) <= set(second_takes_odd_pieces[0])
     assert two.selectors == one.selectors and list(two.order) == list(one.order)
     np.testing.assert_array_equal(two.time_grid, one.time_grid)
     for name in one.selectors:
@@ -400,8 +404,11 @@ def test_tuned_selectors_in_a_second_process_give_the_same_result(selectors, n):
     train, test = np.arange(0, n, 2), np.arange(1, n, 2)
     h1 = box_core.holdout(S, train, test, **kw)
     h2 = box_core.holdout(S, train, test, **kw, workers=2)
+    assert len(second_takes_odd_pieces) == (2 if plain else 1)  # one group: one piece
     for name in h1.selectors:
         np.testing.assert_array_equal(h2.order[name], h1.order[name])
+        for key, values in h1.settings.get(name, {}).items():
+            np.testing.assert_array_equal(h2.settings[name][key], values)
 
 
 def test_the_second_process_needs_no_main_guard_in_the_caller():

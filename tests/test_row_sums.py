@@ -224,18 +224,20 @@ def test_policies_that_share_a_table_get_larger_batches_and_the_same_result(monk
     # with a budget of a few instances per batch, EIPS and CONTEXTUAL (shares_tables) run
     # in batches SHARED_TABLE_BATCH_FACTOR times larger than BOX's where rows stop at
     # their best, and in BOX's through every try; every result is what one batch of all
-    # rows gives
+    # rows gives.  holdout: CONTEXTUAL's rows are one tuning group, one piece of work, as
+    # every other selector's (the budget is per piece: loocv's tuning groups are pieces)
     D, kwargs = eips_narrow_case("feasible")
     X = np.random.default_rng(2).normal(size=(D.shape[0], 3))
+    train, test = np.arange(4), np.arange(4, D.shape[0])
     names = ("box", "eips", "contextual")
     args = dict(selectors=names, instance_features=X, until_best=True,
                 params={"contextual": {"k": 6, "select_features": 0}},
                 measure_overhead=False, **kwargs)
-    whole = box_core.loocv(D, **args)
+    whole = box_core.holdout(D, train, test, **args)
     loocv_module = sys.modules["box_core.loocv"]
     per = selectors.Box.bytes_per_instance(D.shape[1], D.shape[1], D.shape[1])
     monkeypatch.setattr(loocv_module, "MIN_BATCH_BYTES", 0)
-    monkeypatch.setattr(loocv_module, "BATCH_BYTES_PER_ENTRY", 2 * per / D.size)
+    monkeypatch.setattr(loocv_module, "BATCH_BYTES_PER_ENTRY", 2 * per / (test.size * D.shape[1]))
     sizes = {name: [] for name in names}
     for name in names:
         cls = selectors.SELECTORS[name]
@@ -247,13 +249,13 @@ def test_policies_that_share_a_table_get_larger_batches_and_the_same_result(monk
             _init(self, ctx, *a, **k)
 
         monkeypatch.setattr(cls, "__init__", counted)
-    split = box_core.loocv(D, **args)
+    split = box_core.holdout(D, train, test, **args)
     factor = loocv_module.SHARED_TABLE_BATCH_FACTOR
     assert max(sizes["box"]) == 2
     assert max(sizes["eips"]) == max(sizes["contextual"]) == 2 * factor
     for name in names:
         sizes[name].clear()
-    box_core.loocv(D, **{**args, "until_best": False})  # every try: W's plain budget
+    box_core.holdout(D, train, test, **{**args, "until_best": False})  # W's plain budget
     assert max(sizes["eips"]) == max(sizes["contextual"]) == max(sizes["box"]) == 2
     for field in ("order", "first_feasible_step", "first_feasible_planning_time",
                   "best_score"):
