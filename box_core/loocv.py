@@ -411,7 +411,7 @@ class _Setup:
         plain = tuple(n for n in names if n not in tuned)
         pieces = _pieces(tuned, plain, tuning(test) if tuned else [], test.size,
                          workers if again is not None else 1,
-                         lambda names: sum(self.classes[n].relative_cost for n in names))
+                         lambda group: sum(self.classes[n].relative_cost for n in group))
 
         def work(claims):
             return {i: self._piece(piece, folds, measure, fast)
