@@ -403,3 +403,25 @@ def test_until_best_with_capped_tries_and_a_second_process():
         short = loocv(S, **kw, until_best=True, time_grid=full.time_grid, workers=workers)
         _assert_until_best_agrees(short, full)
         assert (short.order["contextual_capped"] == -1).any()
+
+
+def test_pieces_of_work_are_listed_costliest_first():
+    """``workers=2``'s pieces: each tuning group, and each other selector's rows in halves
+    from HALVES_MIN_ROWS rows on (whole with one process or fewer rows), sorted by cost
+    per row times rows, the order both processes take them in (ties keep their order)."""
+    module = importlib.import_module("box_core.loocv")
+    costs = {"eips": 4.3, "box": 1.0, "static": 0.05, "contextual": 3.1}
+
+    def cost(names):
+        return sum(costs[n] for n in names)
+
+    groups = [(np.arange(g, 100, 10), np.arange(100)) for g in range(10)]
+    pieces = module._pieces(("contextual",), ("static", "box", "eips"), groups, 100, 2, cost)
+    assert [(names, rows.size) for names, rows, _ in pieces] == (
+        [(("eips",), 50)] * 2 + [(("box",), 50)] * 2 + [(("contextual",), 10)] * 10
+        + [(("static",), 50)] * 2)
+    assert [rows[0] for names, rows, _ in pieces if names == ("eips",)] == [0, 50]
+    assert [train is None for *_, train in pieces] == [True] * 4 + [False] * 10 + [True] * 2
+    for workers, rows in ((1, 100), (2, module.HALVES_MIN_ROWS - 1)):
+        whole = module._pieces((), ("box",), [], rows, workers, cost)
+        assert len(whole) == 1 and whole[0][1].size == rows
