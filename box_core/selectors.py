@@ -114,11 +114,11 @@ class Policy:
     #: CONTEXTUAL's neighbours' outcomes): a step then costs about as much for one
     #: instance as for many, so leave-one-out runs such a policy in larger batches.
     shares_tables: ClassVar[bool] = False
-    #: A held-out row's rough cost in leave-one-out against BOX's, for scheduling only:
-    #: with two processes the costliest pieces of work go first, so the two end nearer
-    #: together (the 1500 x 1000 pick_place store, one core: EIPS 4.3, PEM-BO 1.0, DOO
-    #: 0.4, CONTEXTUAL 3.1 and its capped variant 4.4 with their tuning, the fixed orders
-    #: about 0.05).  A wrong value changes no result, only which process ends last.
+    #: A held-out row's rough cost in leave-one-out against BOX's (each class's value
+    #: measured alone on the 1500 x 1000 pick_place store, one core; the tuned ones with
+    #: their tuning), for scheduling only: with two processes the costliest pieces of work
+    #: go first, so the two end nearer together.  A wrong value changes no result, only
+    #: which process ends last.
     relative_cost: ClassVar[float] = 1.0
 
     def __init__(self, ctx: FoldContext):

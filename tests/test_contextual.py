@@ -383,8 +383,9 @@ def test_a_skipped_observation_leaves_the_posterior_as_it_was(constant):
 def test_tuned_selectors_in_a_second_process_give_the_same_result(second_takes_odd_pieces,
                                                                   selectors, n):
     """The two processes share the pieces of work: each of the 10 tuning groups of the
-    tuned selectors, then the others' rows (in halves from 64 rows on); the second process
-    surely takes some of each kind, and the results merged are the one process's."""
+    tuned selectors, and the others' rows (in halves from 64 rows on), costliest first;
+    the second process surely takes the odd ones, and the results merged are the one
+    process's."""
     S, F, T, C, X = problem(n, 8, 2, 5)
     kw = dict(times=T, feasible=F, instance_features=X, checks=C, measure_overhead=False,
               selectors=selectors)
