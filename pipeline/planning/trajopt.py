@@ -42,8 +42,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
-from scipy.optimize import minimize
 
+from pipeline.planning import lbfgsb
 from pipeline.planning.base import DistanceModel, certified, fast_distance_model, recheck
 from pipeline.planning.blas import single_thread
 from pipeline.planning.interface import Planner
@@ -200,9 +200,9 @@ LBFGSB = {"maxiter": 500, "ftol": 1e-14, "gtol": 1e-10}
 
 def box_lbfgsb(fun, x0: np.ndarray, upper: float) -> np.ndarray:
     """The minimiser of ``fun`` (``x -> (value, gradient)``) over the box [0, upper]^n from
-    ``x0`` by scipy's L-BFGS-B with :data:`LBFGSB`."""
-    return minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=[(0.0, upper)] * len(x0),
-                    options=dict(LBFGSB)).x
+    ``x0`` by scipy's L-BFGS-B with :data:`LBFGSB` (driven directly,
+    :mod:`pipeline.planning.lbfgsb`: ``minimize``'s answer, bit for bit)."""
+    return lbfgsb.box_lbfgsb(fun, x0, upper, **LBFGSB)
 
 
 @functools.lru_cache(maxsize=8)
