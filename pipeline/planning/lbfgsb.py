@@ -69,15 +69,15 @@ def _direct(fun, x0, upper, maxiter, ftol, gtol) -> np.ndarray:
     factr = ftol / np.finfo(float).eps
     iterations = 0
     while True:
-        g = g.astype(np.float64)
         _setulb(m, x, low, high, nbd, f, g, factr, gtol, wa, iwa, task, lsave, isave, dsave,
                 MAXLS, ln_task)
         if task[0] == 3:  # evaluate at x
-            if not np.array_equal(x, last):
+            if not (x == last).all():
                 last = x.copy()
                 value, grad = fun(last.copy())
                 nfev += 1
-            f, g = value, np.atleast_1d(grad)
+            # minimize hands setulb a float64 copy of the gradient (setulb reads it only)
+            f, g = value, np.array(grad, dtype=np.float64, ndmin=1)
         elif task[0] == 1:  # a new iterate
             iterations += 1
             if iterations >= maxiter:
