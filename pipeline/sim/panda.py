@@ -177,12 +177,16 @@ class Panda(Robot):
         zeros = [0.0] * len(joints)
         d = np.empty(len(points))
         g = np.empty((len(points), 7))
+        frames: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # link -> (com, rotation) at q
         for k, pt in enumerate(points):
             link, on_arm, normal = pt[3], np.asarray(pt[5]), np.asarray(pt[7])
-            com, orn = pb.getLinkState(self.body, link, computeForwardKinematics=True,
-                                       physicsClientId=c)[:2]
-            rot = np.asarray(pb.getMatrixFromQuaternion(orn)).reshape(3, 3)
-            local = rot.T @ (on_arm - np.asarray(com))
+            if link not in frames:
+                com, orn = pb.getLinkState(self.body, link, computeForwardKinematics=True,
+                                           physicsClientId=c)[:2]
+                frames[link] = (np.asarray(com),
+                                np.asarray(pb.getMatrixFromQuaternion(orn)).reshape(3, 3))
+            com, rot = frames[link]
+            local = rot.T @ (on_arm - com)
             linear, _ = pb.calculateJacobian(self.body, link, local.tolist(), joints, zeros,
                                              zeros, physicsClientId=c)
             d[k] = pt[8]
