@@ -226,6 +226,27 @@ def test_bounded_distances_of_the_mobile_arm_are_the_full_models_bit_for_bit():
         scene.close()
 
 
+def test_the_bounded_model_is_kept_while_the_world_is_and_remade_when_it_moves(domain):
+    """A grasp_arm arm keeps its bounded distance model while its scene's world key holds
+    (one per instance, not one per TrajOpt call); once the other arm moves, a new one
+    reads the world afresh and answers as a model made from scratch."""
+    from pipeline.sim.fast_distance import BoundedDistances
+
+    scene = domain.scene(domain.check_instance(domain.sample_instance(5)))
+    arm, other = scene.arms
+    first = bounded(arm, 0.05)
+    assert bounded(arm, 0.05) is first
+    assert bounded(arm, 0.08) is not first  # another query distance: another model
+    states = _through(np.random.default_rng(2).uniform(P.LOWER, P.UPPER, (4, 7)))
+    other.set(P.HOME + 0.4)
+    moved = bounded(arm, 0.05)
+    assert moved is not first
+    fresh = BoundedDistances(arm, 0.05)
+    for got, want in zip(moved.many(states), fresh.many(states), strict=True):
+        assert got[0].tobytes() == want[0].tobytes() and got[1].tobytes() == want[1].tobytes()
+    other.set(P.HOME)
+
+
 def _before():
     """TrajOpt's module at BEFORE (from git), or None where git or the revision is missing."""
     import importlib.util

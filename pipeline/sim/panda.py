@@ -51,6 +51,7 @@ class Panda(Robot):
     #: is not this arm is the same (the sphere pre-check reads the world once per key)
     world_key = None
     _certified: tuple | None = None  # (world key, certified model)
+    _bounded: tuple | None = None  # (world key and more, bounded distance model)
 
     def __init__(self, client: int, base_position, *, finger_opening: float = 0.04,
                  contacts: str = "cached"):
@@ -158,10 +159,20 @@ class Panda(Robot):
 
     def bounded_distance_model(self, query: float):
         """:meth:`distance_model` asking pybullet only about bodies that may be within
-        ``query`` (the ``bounded_distances`` capability; the same numbers)."""
+        ``query`` (the ``bounded_distances`` capability; the same numbers).  The same
+        model while the scene's :attr:`world_key`, the query, the base and the fingers are
+        (it reads the bodies and their poses when made: about 2 ms, once per TrajOpt call
+        before)."""
         from pipeline.sim.fast_distance import BoundedDistances
 
-        return BoundedDistances(self, query)
+        key = self.world_key() if callable(self.world_key) else None
+        if key is None:
+            return BoundedDistances(self, query)
+        key = (key, float(query), self.base_position.tobytes(), self.base_yaw,
+               self.finger_positions)
+        if self._bounded is None or self._bounded[0] != key:
+            self._bounded = (key, BoundedDistances(self, query))
+        return self._bounded[1]
 
     def distances(self, q, bodies, query: float) -> tuple[np.ndarray, np.ndarray]:
         """Signed distances (k,) of the arm's links to ``bodies`` closer than ``query`` at
