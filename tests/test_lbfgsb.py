@@ -73,3 +73,20 @@ def test_a_box_of_width_zero_goes_to_minimize():
     """minimize answers it without L-BFGS-B: every variable at its bound."""
     fun, _, _ = _quadratic(np.random.default_rng(1), 4, 4)
     assert np.array_equal(lbfgsb.box_lbfgsb(fun, np.ones(4), 0.0, **LBFGSB), np.zeros(4))
+
+
+def test_an_older_scipy_or_a_failing_probe_sends_every_call_to_minimize(monkeypatch):
+    """Before scipy 1.15 the routine takes other arguments: the loop is never tried; and
+    where the probe fails (scipy's routine changed), minimize answers every call."""
+    fun, c, calls = _quadratic(np.random.default_rng(8), 30, 20)
+    x0 = np.where(c < 0, 5.0, 0.0)
+    want = _minimize(fun, x0, 5.0)
+    for version, probe in (((1, 14), True), ((1, 17), False)):
+        monkeypatch.setattr(lbfgsb, "_direct_ok", None)
+        monkeypatch.setattr(lbfgsb, "_version", lambda v=version: v)
+        monkeypatch.setattr(lbfgsb, "_probe", lambda p=probe: p)
+        direct = []
+        monkeypatch.setattr(lbfgsb, "_direct", lambda *a, seen=direct: seen.append(a))
+        assert not lbfgsb.direct_available()
+        assert np.array_equal(lbfgsb.box_lbfgsb(fun, x0, 5.0, **LBFGSB), want)
+        assert not direct

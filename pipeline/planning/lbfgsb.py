@@ -10,14 +10,16 @@ TrajOpt's time in grasp_arm, docs/results.md).  :func:`box_lbfgsb` runs the loop
 answer are those of ``minimize``, bit for bit.
 
 That routine is private to scipy and its signature has changed between releases (scipy
-1.15 replaced the Fortran code with C), so the direct loop is used only after a probe
-problem, solved both ways on first use, gave the same bits; otherwise every call goes to
-``minimize``.  tests/test_lbfgsb.py compares the two on many problems.
+1.15 replaced the Fortran code with C), so the direct loop is used only on scipy 1.15 or
+later, and only after a probe problem, solved both ways on first use, gave the same bits;
+otherwise every call goes to ``minimize``.  tests/test_lbfgsb.py compares the two on many
+problems.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import scipy
 from scipy.optimize import minimize
 
 try:
@@ -27,6 +29,9 @@ except ImportError:  # pragma: no cover (a scipy without it: minimize serves eve
 
 #: minimize's defaults for L-BFGS-B that the loop needs (maxcor, maxls, maxfun)
 MAXCOR, MAXLS, MAXFUN = 10, 20, 15000
+
+#: the first scipy whose routine takes the arguments the loop passes (the C version)
+FIRST_SCIPY = (1, 15)
 
 #: whether the direct loop reproduces ``minimize`` here: None until the probe has run
 _direct_ok: bool | None = None
@@ -89,11 +94,20 @@ def _direct(fun, x0, upper, maxiter, ftol, gtol) -> np.ndarray:
 
 
 def direct_available() -> bool:
-    """Whether the direct loop gives ``minimize``'s bits here (probed once)."""
+    """Whether the direct loop gives ``minimize``'s bits here (probed once; never tried
+    on a scipy before :data:`FIRST_SCIPY`, whose Fortran routine takes other arguments)."""
     global _direct_ok
     if _direct_ok is None:
-        _direct_ok = _setulb is not None and _probe()
+        _direct_ok = _setulb is not None and _version() >= FIRST_SCIPY and _probe()
     return _direct_ok
+
+
+def _version() -> tuple[int, ...]:
+    """scipy's (major, minor), (0,) where its version string says otherwise."""
+    try:
+        return tuple(int(part) for part in scipy.__version__.split(".")[:2])
+    except ValueError:
+        return (0,)
 
 
 def _probe() -> bool:
