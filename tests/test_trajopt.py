@@ -239,12 +239,15 @@ def test_the_bounded_model_is_kept_while_the_world_is_and_remade_when_it_moves(d
     assert bounded(arm, 0.08) is not first  # another query distance: another model
     states = _through(np.random.default_rng(2).uniform(P.LOWER, P.UPPER, (4, 7)))
     other.set(P.HOME + 0.4)
-    moved = bounded(arm, 0.05)
-    assert moved is not first
-    fresh = BoundedDistances(arm, 0.05)
-    for got, want in zip(moved.many(states), fresh.many(states), strict=True):
-        assert got[0].tobytes() == want[0].tobytes() and got[1].tobytes() == want[1].tobytes()
-    other.set(P.HOME)
+    try:
+        moved = bounded(arm, 0.05)
+        assert moved is not first
+        fresh = BoundedDistances(arm, 0.05)
+        for got, want in zip(moved.many(states), fresh.many(states), strict=True):
+            assert got[0].tobytes() == want[0].tobytes()
+            assert got[1].tobytes() == want[1].tobytes()
+    finally:
+        other.set(P.HOME)  # the module's scene, as the other tests expect it
 
 
 def _before():
