@@ -10,6 +10,7 @@ from pipeline import configs
 from pipeline.domains import load_domain
 from pipeline.planning import PlannerSettings
 from pipeline.planning.base import check_order, interpolate, path_is_free
+from pipeline.sim import collide
 from pipeline.sim import fast_check as FC
 from pipeline.sim import panda as P
 from pipeline.sim import spheres as S
@@ -322,6 +323,112 @@ def test_base_checker_with_a_held_rod_answers_as_the_exact_one(carrying):
     _same_answers(model.check, exact.check, _edges(np.random.default_rng(7), lo, hi, 40, 0.04))
     assert model.checker.stats["exact"] < model.checker.stats["rows"] / 5
     assert model.checker.stats["proved"] > 0  # the platform ran into furniture: no pybullet
+
+
+def _arm_checker(scenes, which):
+    """The sphere checker of an arm (``which``: the held rod's or grasp_arm's first arm,
+    next to the other arm), its arm put back by the caller."""
+    if which == "held rod":
+        domain, robot = scenes["carrying"]
+        return FC.certified(MobileArm(robot)).checker, None
+    domain = scenes["grasp_arm"]["exact"]
+    arm = domain.scene(domain.check_instance(domain.sample_instance(4))).arms[0]
+    return FC.certified(arm).checker, arm
+
+
+@pytest.fixture(scope="module")
+def scenes(carrying, grasp_arm):
+    return {"carrying": carrying, "grasp_arm": grasp_arm}
+
+
+def _long_motions(rng, count):
+    """Arm motions up to a whole joint range long, some within a radian of the start."""
+    for k in range(count):
+        a = rng.uniform(P.LOWER, P.UPPER)
+        far = rng.uniform(P.LOWER, P.UPPER)
+        near = np.clip(a + rng.uniform(-1.0, 1.0, 7), P.LOWER, P.UPPER)
+        yield a, (far if k % 2 else near)
+
+
+@pytest.mark.parametrize("which", ["held rod", "next to another arm"])
+def test_arm_motions_scan_alike_segment_by_segment_and_row_by_row(scenes, which):
+    """An arm motion's scan gives the same (rows, first row in doubt, proof) whether it
+    clears rows a segment at a time (the default) or one by one: for whole motions,
+    budgets that stop inside them, and scans resumed after a row in doubt."""
+    checker, arm = _arm_checker(scenes, which)
+    try:
+        kind, psi, step, table, chain, packed, memo = checker._motion_args()
+        rng = np.random.default_rng(11)
+        scanned = 0
+        for a, b in _long_motions(rng, 60):
+            table.uncertain(interpolate(a, b, 0.01))  # every wrist cell known
+            for limit in (10_000, int(rng.integers(2, 60))):
+                start = 0
+                while True:
+                    got = [collide.edge_first(a, b, 0.01, limit, start, kind, psi, step,
+                                              table.state, chain, packed, memo, segment=n)
+                           for n in (collide.SEGMENT, 0)]
+                    assert got[0] == got[1], (a, b, limit, start)
+                    steps, k, proved = got[0]
+                    scanned += k - start
+                    if proved or k >= min(steps, limit):
+                        break
+                    start = k + 1
+        assert scanned > 2_000
+    finally:
+        if arm is not None:
+            arm.set(P.HOME)
+
+
+@pytest.mark.parametrize("which", ["held rod", "next to another arm"])
+def test_a_segment_cleared_at_once_is_cleared_by_the_row_test_row_by_row(scenes, which):
+    """Where the grown test of a segment clears it, the scan's row test clears each of its
+    rows (the rows' own frames, every box near every part): the bound holds.  Both
+    answers occur."""
+    checker, arm = _arm_checker(scenes, which)
+    try:
+        robot, world = checker.robot, checker.world
+        base, origins = checker._motion_args()[4][:2]
+        G, R, B = len(robot.grp_r), len(robot.rbox_T), len(world.box_c)
+        lever_g, lever_b = np.empty((G, 7)), np.empty((R, 7))
+        for g in range(G):
+            collide._levers(origins, robot.grp_frame[g], robot.grp_c[g], robot.grp_r[g],
+                            lever_g[g])
+        for b in range(R):
+            collide._levers(origins, robot.rbox_frame[b], np.ascontiguousarray(
+                robot.rbox_T[b, :, 3]), robot.rbox_r[b], lever_b[b])
+        near_g = np.tile(np.arange(B), (G, 1))
+        near_b = np.tile(np.arange(B), (R, 1))
+        q, dq, fm = np.empty(7), np.empty(7), np.empty((8, 3, 4))
+        dg, db = np.empty(G), np.empty(R)
+        scratch = (np.empty((G, 3)), np.empty((len(robot.sph_r), 3)), np.empty((3, 3)),
+                   np.empty(3), np.empty(3))
+        cleared = tried = 0
+        for a, b in _long_motions(np.random.default_rng(12), 40):
+            steps = int(np.ceil(np.max(np.abs(b - a)) / 0.01))
+            for j in range(0, -(-steps // collide.SEGMENT), 3):
+                collide._segment_motion(j, collide.SEGMENT, steps, a, b - a, base, origins,
+                                        robot.grp_frame, robot.rbox_frame, lever_g, lever_b,
+                                        q, dq, fm, dg, db)
+                tried += 1
+                if not collide._segment_clear(
+                        fm, dg, db, lever_g, lever_b, dq, robot.grp_frame, robot.grp_c,
+                        robot.grp_r, robot.grp_lo, robot.grp_hi, robot.grp_world, robot.sph_c,
+                        robot.sph_r, robot.pair_a, robot.pair_b, robot.rbox_frame,
+                        robot.rbox_T, robot.rbox_h, robot.rbox_r, robot.rbox_pair_b,
+                        robot.rbox_pair_g, world.box_c, world.box_R, world.box_h,
+                        world.box_e, near_g, np.full(G, B), near_b, np.full(R, B),
+                        world.og_c, world.og_r, world.og_lo, world.og_hi, world.sph_c,
+                        world.sph_r, world.og_all, *scratch):
+                    continue
+                cleared += 1
+                rows = np.arange(j * collide.SEGMENT, min((j + 1) * collide.SEGMENT, steps))
+                states = a + ((rows + 1) / steps)[:, None] * (b - a)
+                assert not robot.uncertain(checker.frames(states), world).any(), (a, b, j)
+        assert 0 < cleared < tried
+    finally:
+        if arm is not None:
+            arm.set(P.HOME)
 
 
 def test_base_model_is_made_once_per_carried_state(carrying):

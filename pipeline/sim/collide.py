@@ -15,6 +15,14 @@ Layouts.  A *frame* is a 3 × 4 array [R | t].  The robot is a list of sphere *g
 bounding sphere for a quick first test; and optional robot boxes (a mobile base's
 platform), each riding on a frame.  The world is a list of boxes (centre, rotation,
 half extents, circumradius) and a list of spheres (say, another robot's).
+
+Segments.  An arm's straight motion is scanned row by row, but most of its rows lie in
+free space, far from everything.  The scan first tries a whole segment of ``SEGMENT``
+consecutive rows at once (:func:`_segment_clear`): the frames at the segment's middle,
+and every radius grown by how far the motion can move that part within the segment (a
+bound from the chain's lengths, :func:`_levers`).  Where no grown sphere or box touches
+anything, the row test clears every row of the segment, so those rows need no test of
+their own; the scan's answer is the row test's, row for row.
 """
 
 from __future__ import annotations
@@ -570,12 +578,13 @@ def _memo_views(memo_i, G, R, B):  # pragma: no cover (compiled)
 
 
 @njit(cache=True)
-def _touch(ac, ar, alo, ahi, bc, br, blo, bhi):  # pragma: no cover (compiled)
-    """Does one of the spheres (ac, ar)[alo:ahi] touch one of (bc, br)[blo:bhi]?"""
+def _touch(ac, ar, alo, ahi, bc, br, blo, bhi, grow):  # pragma: no cover (compiled)
+    """Does one of the spheres (ac, ar)[alo:ahi] touch one of (bc, br)[blo:bhi], with
+    ``grow`` added to each pair's sum of radii?"""
     for s in range(alo, ahi):
         for u in range(blo, bhi):
             dx, dy, dz = ac[s, 0] - bc[u, 0], ac[s, 1] - bc[u, 1], ac[s, 2] - bc[u, 2]
-            reach = ar[s] + br[u]
+            reach = ar[s] + br[u] + grow
             if dx * dx + dy * dy + dz * dz < reach * reach:
                 return True
     return False
@@ -595,7 +604,8 @@ def _wrist_apart(fr, wrist_pairs, grp_frame, grp_c, grp_r, grp_lo, grp_hi, sph_c
             _apply(Fa, sph_c[s], sw[s])
         for s in range(grp_lo[b], grp_hi[b]):
             _apply(Fb, sph_c[s], sw[s])
-        if _touch(sw, sph_r, grp_lo[a], grp_hi[a], sw, sph_r, grp_lo[b], grp_hi[b]) and not (
+        if _touch(sw, sph_r, grp_lo[a], grp_hi[a], sw, sph_r, grp_lo[b], grp_hi[b],
+                  0.0) and not (
                 grp_hlo[a] < grp_hhi[a] and grp_hlo[b] < grp_hhi[b] and _apart(
                 Fa, hull, grp_hlo[a], grp_hhi[a], Fb, hull, grp_hlo[b], grp_hhi[b], c, R, c,
                 gap)):
@@ -630,8 +640,156 @@ def _planar_candidates(qa, qb, root_c, root_r, box_c, box_e):  # pragma: no cove
     return out[:n]
 
 
+#: rows of an arm's motion that the scan tries to clear with one test (:func:`_segment_clear`;
+#: 4 and 16 were slower on pick_place's motions, docs/results.md)
+SEGMENT = 8
+
+
 @njit(cache=True)
-def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_step,
+def _levers(origins, frame, centre, extra, out):  # pragma: no cover (compiled)
+    """out[k]: how far a point within ``extra`` of ``centre`` (in frame ``frame`` of
+    :func:`_chain`) can be from joint k's pivot (the origin of frame k + 1) in any
+    configuration: the lengths of the chain's offsets between them plus the point's
+    distance from its frame's origin; 0 for the joints that do not move the frame.  Turning
+    joint k by at most dq[k] moves the point by at most sum(out * dq)."""
+    reach = math.sqrt(centre[0] ** 2 + centre[1] ** 2 + centre[2] ** 2) + extra
+    for k in range(out.shape[0] - 1, -1, -1):
+        if k + 1 > frame:
+            out[k] = 0.0
+            continue
+        out[k] = reach
+        reach += math.sqrt(origins[k, 0, 3] ** 2 + origins[k, 1, 3] ** 2 + origins[k, 2, 3] ** 2)
+
+
+@njit(cache=True)
+def _segment_motion(j, segment, steps, qa, diff, base, origins, grp_frame, rbox_frame, lever_g,
+                    lever_b, q, dq, fm, dg, db):  # pragma: no cover (compiled)
+    """The frames ``fm`` of the middle of rows j·segment … (j + 1)·segment - 1 of the arm
+    motion qa + (row + 1) / steps · diff, how far each joint turns from there within
+    those rows (dq), and how far that moves each group's points (dg) and each robot box's
+    (db), a little more than the bound for rounding."""
+    i0 = j * segment
+    i1 = min(i0 + segment, steps) - 1
+    middle, half = (i0 + i1 + 2) / (2.0 * steps), (i1 - i0) / (2.0 * steps)
+    for i in range(qa.shape[0]):
+        q[i] = qa[i] + middle * diff[i]
+        dq[i] = abs(diff[i]) * half
+    _chain(q, base, origins, fm)
+    for g in range(lever_g.shape[0]):
+        dg[g] = _moved(lever_g[g], dq, 0, grp_frame[g])
+    for b in range(lever_b.shape[0]):
+        db[b] = _moved(lever_b[b], dq, 0, rbox_frame[b])
+
+
+@njit(cache=True)
+def _moved(lever, dq, lo, hi):  # pragma: no cover (compiled)
+    """How far turning joints lo … hi - 1 by dq moves a point of ``lever`` (:func:`_levers`),
+    plus 1e-9 m: the row test's rounding is far below that."""
+    out = 1e-9
+    for k in range(lo, hi):
+        out += lever[k] * dq[k]
+    return out
+
+
+@njit(cache=True)
+def _segment_clear(fm, dg, db, lever_g, lever_b, dq, grp_frame, grp_c, grp_r, grp_lo, grp_hi,
+                   grp_world, sph_c, sph_r, pair_a, pair_b, rbox_frame, rbox_T, rbox_h, rbox_r,
+                   rbox_pair_b, rbox_pair_g, box_c, box_R, box_h, box_e, gnear, gcount, bnear,
+                   bcount, og_c, og_r, og_lo, og_hi, obs_c, obs_r, og_all, gw, sw, Rw, cw,
+                   hb):  # pragma: no cover (compiled)
+    """Does the scan's row test clear every configuration within the bounds of
+    :func:`_segment_motion` (frames ``fm`` at the middle; each group's points within dg[g]
+    of where they are there, each robot box's within db[b])?  The row test's sphere and
+    box tests with each radius and half extent grown by those bounds (for two parts of
+    the robot, by how far the joints between their frames move one against the other):
+    where none of them touches, nothing touches in any of those configurations, and the
+    row test clears each of them.  False: the rows are tested one by one (so is a
+    segment that only the hulls would clear)."""
+    G = grp_c.shape[0]
+    for g in range(G):
+        _apply(fm[grp_frame[g]], grp_c[g], gw[g])
+    for g in range(G):
+        if not grp_world[g]:
+            continue
+        F = fm[grp_frame[g]]
+        x, y, z, rg = gw[g, 0], gw[g, 1], gw[g, 2], grp_r[g] + dg[g]
+        placed = False
+        for k in range(gcount[g]):
+            m = gnear[g, k]
+            if _off_aabb(x, y, z, rg, box_c[m], box_e[m]) or not _sphere_box(
+                    gw[g], rg, box_c[m], box_R[m], box_h[m]):
+                continue
+            if not placed:
+                for s in range(grp_lo[g], grp_hi[g]):
+                    _apply(F, sph_c[s], sw[s])
+                placed = True
+            for s in range(grp_lo[g], grp_hi[g]):
+                if _sphere_box(sw[s], sph_r[s] + dg[g], box_c[m], box_R[m], box_h[m]):
+                    return False
+        dx, dy, dz = x - og_all[0], y - og_all[1], z - og_all[2]
+        reach = rg + og_all[3]
+        for o in range(og_c.shape[0] if dx * dx + dy * dy + dz * dz < reach * reach else 0):
+            dx, dy, dz = x - og_c[o, 0], y - og_c[o, 1], z - og_c[o, 2]
+            reach = rg + og_r[o]
+            if dx * dx + dy * dy + dz * dz >= reach * reach:
+                continue
+            if not placed:
+                for s in range(grp_lo[g], grp_hi[g]):
+                    _apply(F, sph_c[s], sw[s])
+                placed = True
+            if _touch(sw, sph_r, grp_lo[g], grp_hi[g], obs_c, obs_r, og_lo[o], og_hi[o],
+                      dg[g]):
+                return False
+    for k in range(pair_a.shape[0]):
+        a, b = pair_a[k], pair_b[k]
+        if grp_frame[a] > grp_frame[b]:
+            a, b = b, a
+        grow = _moved(lever_g[b], dq, grp_frame[a], grp_frame[b])
+        dx, dy, dz = gw[a, 0] - gw[b, 0], gw[a, 1] - gw[b, 1], gw[a, 2] - gw[b, 2]
+        reach = grp_r[a] + grp_r[b] + grow
+        if dx * dx + dy * dy + dz * dz >= reach * reach:
+            continue
+        for s in range(grp_lo[a], grp_hi[a]):
+            _apply(fm[grp_frame[a]], sph_c[s], sw[s])
+        for s in range(grp_lo[b], grp_hi[b]):
+            _apply(fm[grp_frame[b]], sph_c[s], sw[s])
+        if _touch(sw, sph_r, grp_lo[a], grp_hi[a], sw, sph_r, grp_lo[b], grp_hi[b], grow):
+            return False
+    for b in range(rbox_T.shape[0]):
+        _place(fm[rbox_frame[b]], rbox_T[b], Rw, cw)
+        rb = rbox_r[b] + db[b]
+        for i in range(3):
+            hb[i] = rbox_h[b, i] + db[b]  # holds the box wherever its points go
+        for k in range(bcount[b]):
+            m = bnear[b, k]
+            if _off_aabb(cw[0], cw[1], cw[2], rb, box_c[m], box_e[m]) or not _sphere_box(
+                    cw, rb, box_c[m], box_R[m], box_h[m]):
+                continue
+            if _box_box(cw, Rw, hb, box_c[m], box_R[m], box_h[m]):
+                return False
+        for u in range(obs_c.shape[0]):
+            if _sphere_box(obs_c[u], obs_r[u] + db[b], cw, Rw, rbox_h[b]):
+                return False
+        for k in range(rbox_pair_b.shape[0]):
+            if rbox_pair_b[k] != b:
+                continue
+            g = rbox_pair_g[k]
+            fb, fg = rbox_frame[b], grp_frame[g]
+            grow = (_moved(lever_b[b], dq, fg, fb) if fb > fg
+                    else _moved(lever_g[g], dq, fb, fg))
+            dx, dy, dz = cw[0] - gw[g, 0], cw[1] - gw[g, 1], cw[2] - gw[g, 2]
+            reach = rbox_r[b] + grp_r[g] + grow
+            if dx * dx + dy * dy + dz * dz >= reach * reach:
+                continue
+            for s in range(grp_lo[g], grp_hi[g]):
+                _apply(fm[grp_frame[g]], sph_c[s], sw[s])
+                if _sphere_box(sw[s], sph_r[s] + grow, cw, Rw, rbox_h[b]):
+                    return False
+    return True
+
+
+@njit(cache=True)
+def _scan(kind, frames, pre, qa, qb, resolution, limit, start, segment, psi_scale, wrist_step,
           wrist_state, base, origins, wrist_lower, wrist_pairs, rf, ri, rm, wf, wi, wm,
           root_frame, root_r, depth, memo_f, memo_i):  # pragma: no cover (compiled)
     """The scan of :func:`first_uncertain` (``kind`` 2: the configurations' ``frames``
@@ -641,7 +799,9 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
     ``kind`` 2).  ``rf``, ``ri``, ``rm``: the robot's arrays (``ROBOT_PACK``, :func:`pack`);
     ``wf``, ``wi``, ``wm``: the world's (``WORLD_PACK``).  ``wrist_pairs``: (P, 2) the
     groups of an arm's wrist pairs, or none: a configuration whose wrist cell may hold a
-    contact is cleared all the same where those pairs are apart (:func:`_wrist_apart`)."""
+    contact is cleared all the same where those pairs are apart (:func:`_wrist_apart`).
+    ``segment``: an arm's rows (wrist cell known free) are cleared ``segment`` at a time
+    where :func:`_segment_clear` can (0: row by row)."""
     grp_frame, grp_c, grp_r = _f1(ri, rm[0]), _f2(rf, rm[1]), _f1(rf, rm[2])
     grp_lo, grp_hi, grp_world = _f1(ri, rm[3]), _f1(ri, rm[4]), _f1(ri, rm[5])
     sph_c, sph_r, pair_a, pair_b = _f2(rf, rm[6]), _f1(rf, rm[7]), _f1(ri, rm[8]), _f1(ri, rm[9])
@@ -702,6 +862,14 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
             cand = _planar_candidates(qa, qb, root_c, root_r, box_c, box_e)
     articulated = (frames.shape[1] if kind == 2 else buf.shape[0]) > 1
     ni, nk = wrist_state.shape[0], wrist_state.shape[1]
+    # an arm's segments: 0 not tried yet, 1 cleared, 2 tested row by row (after the
+    # call's first row: an edge that collides mostly shows it there)
+    nseg = (steps + segment - 1) // segment if kind == 0 and 0 < segment < rows else 0
+    seg = np.zeros(nseg, dtype=np.int8)
+    lever_g, lever_b = np.empty((G if nseg else 0, d)), np.empty((R if nseg else 0, d))
+    fm = np.empty((8 if nseg else 0, 3, 4))
+    dq, dg, db, hb = np.empty(d), np.empty(G), np.empty(R), np.empty(3)
+    levers = False  # lever_g, lever_b computed
     for pos in range(start, rows):
         if kind == 2:
             fr = frames[pos]
@@ -722,6 +890,28 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
                 cell = wrist_state[i5, i6]
                 if cell == 0:
                     return steps, -1 - pos, False
+                if cell == 1 and nseg and pos > start:
+                    j = order[pos] // segment
+                    if seg[j] == 0:
+                        if not levers:
+                            levers = True
+                            for g in range(G):
+                                _levers(origins, grp_frame[g], grp_c[g], grp_r[g], lever_g[g])
+                            for b in range(R):
+                                _levers(origins, rbox_frame[b], rbox_T[b, :, 3], rbox_r[b],
+                                        lever_b[b])
+                        _segment_motion(j, segment, steps, qa, diff, base, origins, grp_frame,
+                                        rbox_frame, lever_g, lever_b, q, dq, fm, dg, db)
+                        seg[j] = 1 if _segment_clear(
+                            fm, dg, db, lever_g, lever_b, dq, grp_frame, grp_c, grp_r, grp_lo,
+                            grp_hi, grp_world, sph_c, sph_r, pair_a, pair_b, rbox_frame, rbox_T,
+                            rbox_h, rbox_r, rbox_pair_b, rbox_pair_g, box_c, box_R, box_h,
+                            box_e, gnear, gcount, bnear, bcount, og_c, og_r, og_lo, og_hi,
+                            obs_c, obs_r, og_all, gw, sw, Rw, cw, hb) else 2
+                        for i in range(d):  # the row's own configuration again
+                            q[i] = qa[i] + t * diff[i]
+                    if seg[j] == 1:
+                        continue
                 _chain(q, base, origins, fr)
                 if cell != 1 and not (cell == 2 and wrist_pairs.shape[0] > 0 and _wrist_apart(
                         fr, wrist_pairs, grp_frame, grp_c, grp_r, grp_lo, grp_hi, sph_c, sph_r,
@@ -808,7 +998,7 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, psi_scale, wrist_
                         _apply(F, sph_c[s], sw[s])
                     done[g] = True
                 touch = _touch(sw, sph_r, grp_lo[g], grp_hi[g], obs_c, obs_r, og_lo[o],
-                               og_hi[o])
+                               og_hi[o], 0.0)
                 if touch and not (grp_hlo[g] < grp_hhi[g] and og_hlo[o] < og_hhi[o] and _apart(
                         F, hull, grp_hlo[g], grp_hhi[g], world_frame, og_hull, og_hlo[o],
                         og_hhi[o], cw, Rw, cw, gaps[2])):
@@ -919,12 +1109,12 @@ def first_uncertain(frames, start, pre, packed, wrist_pairs=None) -> int:
     each group and robot box: boxes they miss are not looked at.
     """
     pairs = NO_CHAIN[3] if wrist_pairs is None else wrist_pairs
-    return _scan(2, frames, pre, _NO_STATE, _NO_STATE, 1.0, 0, start, 1.0, 1.0, _NO_CELLS,
+    return _scan(2, frames, pre, _NO_STATE, _NO_STATE, 1.0, 0, start, 0, 1.0, 1.0, _NO_CELLS,
                  *NO_CHAIN[:3], pairs, *packed, _NO_STATE, _NO_MEMO)[1]
 
 
 def edge_first(a, b, resolution, limit, start, kind, psi_scale, wrist_step, wrist_state,
-               chain, packed, memo=None) -> tuple[int, int, bool]:
+               chain, packed, memo=None, segment=SEGMENT) -> tuple[int, int, bool]:
     """:func:`first_uncertain` over the straight motion a→b as
     :meth:`pipeline.planning.base.Robot.check_motion` checks it, without making its
     states first: the states of :func:`pipeline.planning.base.interpolate` (``steps`` of
@@ -940,10 +1130,11 @@ def edge_first(a, b, resolution, limit, start, kind, psi_scale, wrist_step, wris
     known at all ends the scan with position -1 - k, for the caller to fill it); 1: a base
     (:func:`planar_frames`).  ``memo``: None, or a :func:`near_memo` for this robot and
     world, kept by the caller from call to call (an arm's base stands still over a
-    planning call: the boxes near it are found once)."""
+    planning call: the boxes near it are found once).  ``segment``: an arm's rows are
+    cleared that many at a time where they can be (0: one by one; the same answer)."""
     memo_f, memo_i = (_NO_STATE, _NO_MEMO) if memo is None else memo
-    return _scan(kind, _NO_FRAMES, _NO_PRE, a, b, resolution, limit, start, psi_scale,
-                 wrist_step, wrist_state, *chain, *packed, memo_f, memo_i)
+    return _scan(kind, _NO_FRAMES, _NO_PRE, a, b, resolution, limit, start, segment,
+                 psi_scale, wrist_step, wrist_state, *chain, *packed, memo_f, memo_i)
 
 
 @njit(cache=True)
