@@ -578,6 +578,14 @@ def _memo_views(memo_i, G, R, B):  # pragma: no cover (compiled)
 
 
 @njit(cache=True)
+def _meets(x, y, z, r, c, rc):  # pragma: no cover (compiled)
+    """Does the sphere (x, y, z; r) reach into the sphere (c[:3]; rc)?"""
+    dx, dy, dz = x - c[0], y - c[1], z - c[2]
+    reach = r + rc
+    return dx * dx + dy * dy + dz * dz < reach * reach
+
+
+@njit(cache=True)
 def _touch(ac, ar, alo, ahi, bc, br, blo, bhi, grow):  # pragma: no cover (compiled)
     """Does one of the spheres (ac, ar)[alo:ahi] touch one of (bc, br)[blo:bhi], with
     ``grow`` added to each pair's sum of radii?"""
@@ -726,12 +734,8 @@ def _segment_clear(fm, dg, db, lever_g, lever_b, dq, grp_frame, grp_c, grp_r, gr
             for s in range(grp_lo[g], grp_hi[g]):
                 if _sphere_box(sw[s], sph_r[s] + dg[g], box_c[m], box_R[m], box_h[m]):
                     return False
-        dx, dy, dz = x - og_all[0], y - og_all[1], z - og_all[2]
-        reach = rg + og_all[3]
-        for o in range(og_c.shape[0] if dx * dx + dy * dy + dz * dz < reach * reach else 0):
-            dx, dy, dz = x - og_c[o, 0], y - og_c[o, 1], z - og_c[o, 2]
-            reach = rg + og_r[o]
-            if dx * dx + dy * dy + dz * dz >= reach * reach:
+        for o in range(og_c.shape[0] if _meets(x, y, z, rg, og_all, og_all[3]) else 0):
+            if not _meets(x, y, z, rg, og_c[o], og_r[o]):
                 continue
             if not placed:
                 for s in range(grp_lo[g], grp_hi[g]):
@@ -986,12 +990,8 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, segment, psi_scal
                                 box_R[m], box_h[m], gaps[0]):
                             break
                         return steps, pos, _proved(kind, fr, *proof)
-            dx, dy, dz = x - og_all[0], y - og_all[1], z - og_all[2]
-            reach = rg + og_all[3]
-            for o in range(og_c.shape[0] if dx * dx + dy * dy + dz * dz < reach * reach else 0):
-                dx, dy, dz = x - og_c[o, 0], y - og_c[o, 1], z - og_c[o, 2]
-                reach = rg + og_r[o]
-                if dx * dx + dy * dy + dz * dz >= reach * reach:
+            for o in range(og_c.shape[0] if _meets(x, y, z, rg, og_all, og_all[3]) else 0):
+                if not _meets(x, y, z, rg, og_c[o], og_r[o]):
                     continue
                 if not done[g]:
                     for s in range(grp_lo[g], grp_hi[g]):
