@@ -77,12 +77,13 @@ def main() -> None:
     ap.add_argument("--instances", type=int, default=3)
     ap.add_argument("--constraints", type=int, default=40)
     ap.add_argument("--rounds", type=int, default=5)
-    ap.add_argument("--sizes", default="0,4,8,16")
+    ap.add_argument("--sizes", default=[0, 4, 8, 16], help="segment sizes, comma-separated",
+                    type=lambda v: [int(s) for s in v.split(",")])
     ap.add_argument("--seed", type=int, default=2017)
     args = ap.parse_args()
     from pipeline.sim import collide
 
-    sizes = [int(s) for s in args.sizes.split(",")]
+    sizes = args.sizes
     calls = record(entries(args.raw, args.instances, args.constraints, args.seed))
     groups = collections.defaultdict(list)
     for k, (a, answer) in enumerate(calls):
