@@ -749,9 +749,7 @@ def _segment_clear(fm, dg, db, lever_g, lever_b, dq, grp_frame, grp_c, grp_r, gr
         if grp_frame[a] > grp_frame[b]:
             a, b = b, a
         grow = _moved(lever_g[b], dq, grp_frame[a], grp_frame[b])
-        dx, dy, dz = gw[a, 0] - gw[b, 0], gw[a, 1] - gw[b, 1], gw[a, 2] - gw[b, 2]
-        reach = grp_r[a] + grp_r[b] + grow
-        if dx * dx + dy * dy + dz * dz >= reach * reach:
+        if not _meets(gw[a, 0], gw[a, 1], gw[a, 2], grp_r[a] + grow, gw[b], grp_r[b]):
             continue
         for s in range(grp_lo[a], grp_hi[a]):
             _apply(fm[grp_frame[a]], sph_c[s], sw[s])
@@ -781,9 +779,7 @@ def _segment_clear(fm, dg, db, lever_g, lever_b, dq, grp_frame, grp_c, grp_r, gr
             fb, fg = rbox_frame[b], grp_frame[g]
             grow = (_moved(lever_b[b], dq, fg, fb) if fb > fg
                     else _moved(lever_g[g], dq, fb, fg))
-            dx, dy, dz = cw[0] - gw[g, 0], cw[1] - gw[g, 1], cw[2] - gw[g, 2]
-            reach = rbox_r[b] + grp_r[g] + grow
-            if dx * dx + dy * dy + dz * dz >= reach * reach:
+            if not _meets(cw[0], cw[1], cw[2], rbox_r[b] + grow, gw[g], grp_r[g]):
                 continue
             for s in range(grp_lo[g], grp_hi[g]):
                 _apply(fm[grp_frame[g]], sph_c[s], sw[s])
@@ -870,9 +866,10 @@ def _scan(kind, frames, pre, qa, qb, resolution, limit, start, segment, psi_scal
     # call's first row: an edge that collides mostly shows it there)
     nseg = (steps + segment - 1) // segment if kind == 0 and 0 < segment < rows else 0
     seg = np.zeros(nseg, dtype=np.int8)
-    lever_g, lever_b = np.empty((G if nseg else 0, d)), np.empty((R if nseg else 0, d))
-    fm = np.empty((8 if nseg else 0, 3, 4))
-    dq, dg, db, hb = np.empty(d), np.empty(G), np.empty(R), np.empty(3)
+    used = 1 if nseg else 0  # scratch of full size only where segments are tried
+    lever_g, lever_b = np.empty((G * used, d)), np.empty((R * used, d))
+    fm = np.empty((8 * used, 3, 4))
+    dq, dg, db, hb = np.empty(d * used), np.empty(G * used), np.empty(R * used), np.empty(3 * used)
     levers = False  # lever_g, lever_b computed
     for pos in range(start, rows):
         if kind == 2:
