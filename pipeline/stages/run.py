@@ -238,8 +238,9 @@ class Run:
             finished, pending = store.blocks(group)  # a layout-1 store opened read-only
             damage = store.verify(group)
             return sorted(set(pending) | damage.blocks), damage
-        finished = store.finished_blocks(group)
-        damage = store.verify(group, finished)
+        rows = store.table_rows(group)  # read once, for both
+        finished = store.finished_blocks(group, rows)
+        damage = store.verify(group, finished, rows=rows)
         ok = set(finished) - damage.blocks
         return [b for b in np.ndindex(*store.grid(group)) if b not in ok], damage
 

@@ -131,6 +131,15 @@ class DocumentsReadOnce(zarr.storage.WrapperStore):
         finally:
             shared.documents = None
 
+    def remembered(self, key: str, default=None):
+        """The document ``key`` as remembered (None where it is known to be absent), or
+        ``default`` where nothing is remembered for it: a synchronous caller then needs no
+        call into Zarr's event loop (a hand-off between threads, about 0.2 ms here)."""
+        documents = self._shared.documents
+        if documents is None or key not in documents:
+            return default
+        return documents[key]
+
     async def get(self, key, prototype, byte_range=None):
         documents = self._shared.documents
         if documents is None or byte_range is not None or not _is_document(key):

@@ -97,7 +97,8 @@ def _root_attrs(location: Location, zstore=None) -> dict:
     if zstore is None:
         zstore = location.zarr_store(read_only=True)
     with translated(location):
-        return dict(zarr.open_group(store=zstore, mode="r", use_consolidated=False).attrs)
+        return dict(zarr.open_group(store=zstore, mode="r", use_consolidated=False,
+                                    zarr_format=3).attrs)
 
 
 def check_is_ours(path, zstore=None) -> None:
@@ -145,7 +146,7 @@ class ScoreStore(Readers, BlockWrites, Verification):
         self.zstore = zstore if zstore is not None else DocumentsReadOnce(
             self.location.zarr_store(read_only=read_only), always=read_only)
         self.root = zarr.open_group(store=self.zstore, mode="r" if read_only else "r+",
-                                    use_consolidated=False)
+                                    use_consolidated=False, zarr_format=3)
         self._arrays: dict[str, zarr.Array] = {}
         self._consolidated_at = self.zstore.document_changes
         #: called before every write (blocks, records, attributes, arrays, documents): the
@@ -403,7 +404,9 @@ class ScoreStore(Readers, BlockWrites, Verification):
         from zarr.core.buffer import default_buffer_prototype
         from zarr.core.sync import sync
 
-        buf = sync(self.zstore.get(key, prototype=default_buffer_prototype()))
+        buf = self.zstore.remembered(key, _UNREAD)
+        if buf is _UNREAD:
+            buf = sync(self.zstore.get(key, prototype=default_buffer_prototype()))
         return None if buf is None else buf.to_bytes()
 
     def write_document(self, path: str, doc: dict) -> None:
@@ -417,7 +420,7 @@ class ScoreStore(Readers, BlockWrites, Verification):
         sync(self.zstore.set(_doc_key(path), default_buffer_prototype().buffer.from_bytes(data)))
         self._arrays.clear()
         self.root = zarr.open_group(store=self.zstore, mode="r" if self.read_only else "r+",
-                                    use_consolidated=False)
+                                    use_consolidated=False, zarr_format=3)
 
     def consolidate(self, force: bool = False) -> None:
         """Consolidated metadata for readers (xarray); only between runs' stages, and only
@@ -431,6 +434,10 @@ class ScoreStore(Readers, BlockWrites, Verification):
             warnings.filterwarnings("ignore", message=".*[Cc]onsolidated metadata.*")
             zarr.consolidate_metadata(self.zstore)
         self._consolidated_at = self.zstore.document_changes
+
+
+#: :meth:`ScoreStore.read_bytes`: a document the view does not remember
+_UNREAD = object()
 
 
 def _run_view(location: Location) -> DocumentsReadOnce:

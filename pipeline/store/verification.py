@@ -18,22 +18,28 @@ READ_AT_ONCE = 8
 class Verification:
     """The store's integrity checks (a mixin of :class:`pipeline.store.ScoreStore`)."""
 
-    def finished_blocks(self, group: str) -> list[tuple[int, ...]]:
-        """Blocks whose integrity row is recorded (readable and complete)."""
-        rows = self._table_rows(group)
+    def finished_blocks(self, group: str, rows=None) -> list[tuple[int, ...]]:
+        """Blocks whose integrity row is recorded (readable and complete); ``rows``: the
+        table's rows as :meth:`table_rows` read them (default: read them now)."""
+        rows = self.table_rows(group) if rows is None else rows
         return [block for block, row in rows.items()
                 if row is not None and np.all(row != integrity.NOT_RECORDED)]
 
-    def _table_rows(self, group: str) -> dict[tuple, np.ndarray | None]:
+    def table_rows(self, group: str) -> dict[tuple, np.ndarray | None]:
         """Each block's row of ``group``'s integrity table (None: it does not decode)."""
         table = self.array(table_key(group))
         return {block[:-1]: None if row is None else row.reshape(-1)
                 for block, row in chunk_values(table).items()}
 
-    def verify(self, group: str, blocks=None, expect_all: bool = False) -> Damage:
+    def verify(self, group: str, blocks=None, expect_all: bool = False,
+               rows=None) -> Damage:
         """Damage in the recorded ``blocks`` (default: all) of ``group``.  A block without a
         readable record counts as damage of the record when the block should have one:
-        its ``done`` mask says so, or ``expect_all`` (a finished group written whole)."""
+        its ``done`` mask says so, or ``expect_all`` (a finished group written whole).
+        ``rows``: the integrity table's rows, where the caller read them already
+        (:meth:`table_rows`).  Each chunk is read once: the ``done`` mask's chunks, read
+        whole to know which blocks are done, are not read again for their digests (in
+        object storage every read is a round trip)."""
         damage = Damage()
         if not self.has_table(group):
             return self._verify_decoding(group)
@@ -43,11 +49,12 @@ class Verification:
         gone = set(self.missing_arrays(group))
         written = {name: self.chunk_keys(f"{group}/{name}") for name in layout.names
                    if name not in gone}
-        done = self._done_blocks(group) if not expect_all else None
+        read = {}  # (array key, chunk) -> digest of the values read already
+        done = self._done_blocks(group, read) if not expect_all else None
         if blocks is None:
             blocks = list(np.ndindex(*table.shape[:-1]))
         checks = []  # (array key, its chunk, recorded digest, block): read below, together
-        rows = self._table_rows(group)
+        rows = self.table_rows(group) if rows is None else rows
         for block in blocks:
             expected = expect_all or (done is not None and block in done)
             row = rows.get(tuple(block))  # None: does not decode
@@ -68,7 +75,8 @@ class Verification:
                     damage.add("missing", key, block)
                     continue
                 checks.append((key, chunk, int(row[k]), block))
-        digests = self._chunk_digests({(key, chunk) for key, chunk, _, _ in checks})
+        digests = {**read, **self._chunk_digests(
+            {(key, chunk) for key, chunk, _, _ in checks} - set(read))}
         for key, chunk, recorded, block in checks:
             if digests[key, chunk] != recorded:  # None: the chunk does not decode
                 damage.add("corrupted", key, block)
@@ -110,12 +118,19 @@ class Verification:
         """Arrays that the integrity table of ``group`` covers but that are gone."""
         return [name for name in self.layout(group).names if not self.has(f"{group}/{name}")]
 
-    def _done_blocks(self, group: str) -> set:
-        """Blocks whose ``done`` mask is all set (that mask's own damage aside)."""
-        if not self.has(done_key(group)):
+    def _done_blocks(self, group: str, read: dict | None = None) -> set:
+        """Blocks whose ``done`` mask is all set (that mask's own damage aside); ``read``
+        gets the digest of each of the mask's chunks (None: it does not decode), keyed as
+        :meth:`_chunk_digests` keys them."""
+        key = done_key(group)
+        if not self.has(key):
             return set(np.ndindex(*self.grid(group)))  # the mask is gone: all were done
-        return {block for block, values in chunk_values(self.array(done_key(group))).items()
-                if values is not None and values.all()}  # None: damage of done itself
+        values = chunk_values(self.array(key))
+        if read is not None:
+            read.update({(key, chunk): None if v is None else digest(v)
+                         for chunk, v in values.items()})
+        return {block for block, v in values.items()
+                if v is not None and v.all()}  # None: damage of done itself
 
     def _verify_decoding(self, group: str) -> Damage:
         """Layout 1 (no integrity table): chunks of finished blocks must decode."""
@@ -145,13 +160,14 @@ class Verification:
     def array_digests(self, keys) -> dict[str, str]:
         """A digest per array (of its recorded chunk digests, or of its values when it is
         outside any block group): what a stage records about its inputs."""
-        out = {}
+        out, tables = {}, {}  # each group's table read once
         for key in keys:
             group, name = key.split("/", 1)
             if self.has_table(group) and name in self.layout(group).names:
                 k = self.layout(group).names.index(name)
-                out[key] = integrity.combine(
-                    self.array(table_key(group))[..., k].reshape(-1))
+                if group not in tables:
+                    tables[group] = self.array(table_key(group))[...]
+                out[key] = integrity.combine(tables[group][..., k].reshape(-1))
             else:
                 out[key] = f"{digest(self.array(key)[...]):016x}"
         return out
