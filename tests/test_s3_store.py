@@ -54,19 +54,13 @@ def _nothing_to_do_reads_each_object_once(url: str, tmp_path) -> str:
     digests of its inputs.  Its output."""
     import io
 
-    from hydra import compose, initialize_config_dir
     from rich.console import Console
 
-    from pipeline.configs import CONF_DIR, register_configs
     from pipeline.stages import run_pipeline
 
-    register_configs()
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[*pr.SMALL, f"store.path={url}",
-                                                       "stage=generate"])
     out = io.StringIO()
     with requests_sent() as sent:
-        run_pipeline(cfg, Console(file=out))
+        run_pipeline(_small_config(url, "generate"), Console(file=out))
     chunks = [key for op, key in sent if op == "get_object" and "/c/" in key
               and "/integrity/" not in key]
     assert len(chunks) > 100, sent  # every finished block of every group is verified
@@ -75,6 +69,19 @@ def _nothing_to_do_reads_each_object_once(url: str, tmp_path) -> str:
     assert not [key for _, key in sent
                 if key.rsplit("/", 1)[-1] in (".zgroup", ".zattrs", ".zarray", ".zmetadata")]
     return out.getvalue()
+
+
+def _small_config(url: str, stage: str):
+    """The tests' small planar run (``pr.SMALL``) on the store ``url``, composed as
+    ``python -m pipeline`` composes it, to run in this process."""
+    from hydra import compose, initialize_config_dir
+
+    from pipeline.configs import CONF_DIR, register_configs
+
+    register_configs()
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        return compose(config_name="config", overrides=[*pr.SMALL, f"store.path={url}",
+                                                        f"stage={stage}"])
 
 
 def test_kill_9_on_s3_then_resume_is_bitwise_identical(s3, made, tmp_path):
@@ -142,19 +149,14 @@ def test_each_read_is_one_request_and_no_new_array_is_probed(s3, tmp_path, monke
     where a listing finds nothing (s3fs probes it), an array's attributes in its first
     document (a data array's ``coordinates`` listing in a second, once they exist); ``box
     status`` writes nothing and reads each object without probing it first."""
-    from hydra import compose, initialize_config_dir
     from rich.console import Console
 
     from pipeline.cli import app
-    from pipeline.configs import CONF_DIR, register_configs
     from pipeline.stages import run_pipeline
 
     url = f"s3://{BUCKET}/runs/requests.zarr"
     root_doc = "runs/requests.zarr/zarr.json"  # asked for once, before the run first reads it
-    register_configs()
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = compose(config_name="config", overrides=[*pr.SMALL, f"store.path={url}",
-                                                       "stage=instances"])
+    cfg = _small_config(url, "instances")
     monkeypatch.chdir(tmp_path)
     with requests_sent() as sent:
         run_pipeline(cfg, Console(file=open(os.devnull, "w")))  # noqa: SIM115
