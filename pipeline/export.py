@@ -135,15 +135,16 @@ def export(path, fmt: str, out: Path | None = None, overwrite: bool = False) -> 
     from pipeline.store.status import refuse_damaged
 
     store = ScoreStore.open(path)
-    refuse_damaged(store)
-    stem = store.path.name.removesuffix(".zarr")
-    suffix = FORMATS[fmt]
-    out = Path(out).expanduser() if out else Path.cwd() / f"{stem}{suffix or '-csv'}"
-    if suffix and out.suffix != suffix:
-        raise ValueError(f"{out}: a {fmt} export needs a path ending in {suffix}")
-    check_target(out, fmt, overwrite)
-    arrays = _arrays(store)
-    meta = metadata(store, arrays)
+    with store.reading_once():  # the done mask checked is the one exported, read once
+        refuse_damaged(store)
+        stem = store.path.name.removesuffix(".zarr")
+        suffix = FORMATS[fmt]
+        out = Path(out).expanduser() if out else Path.cwd() / f"{stem}{suffix or '-csv'}"
+        if suffix and out.suffix != suffix:
+            raise ValueError(f"{out}: a {fmt} export needs a path ending in {suffix}")
+        check_target(out, fmt, overwrite)
+        arrays = _arrays(store)
+        meta = metadata(store, arrays)
     writer = WRITERS[fmt]
     try:
         out.parent.mkdir(parents=True, exist_ok=True)

@@ -26,6 +26,12 @@ def test_status_reports_stages_and_exit_codes(made, tmp_path):
     shutil.copytree(store, copy)
     chunk = copy / "scores" / "length" / "c" / "1" / "2"
     chunk.write_bytes(chunk.read_bytes()[:-3] + b"xyz")
+    (copy / "scores" / "time" / "c" / "0" / "1").unlink()
+    root = zarr.open_group(copy, mode="r", use_consolidated=False)
+    res = runner.invoke(app, ["status", str(copy), "--json"])
+    counted = {a["array"]: a["chunks_written"] for a in json.loads(res.output)["arrays"]}
+    assert counted == {key: root[key].nchunks_initialized for key in counted}  # Zarr's count
+    assert counted["scores/time"] == counted["scores/length"] - 1
     res = runner.invoke(app, ["status", str(copy)])
     assert res.exit_code == 1 and "corrupted" in res.output
     res = runner.invoke(app, ["status", str(tmp_path / "missing.zarr")])

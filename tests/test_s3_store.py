@@ -33,10 +33,22 @@ def test_full_run_status_and_export_on_s3(s3, made, tmp_path):
     from pipeline.cli import app
 
     runner = CliRunner()
-    status = runner.invoke(app, ["status", url, "--json"])
+    with requests_sent() as sent:
+        status = runner.invoke(app, ["status", url, "--json"])
     assert status.exit_code == 0, status.output
     doc = json.loads(status.output)
     assert doc["stages"]["scores"]["done"] == 24 * 15 and not doc["damaged"]
+    assert doc["environments"][0]["entries"] == {"raw": 24, "scores": 24 * 15}
+    # status reads every object it needs once and lists each group's and array's objects
+    # once (it read each done mask three times and listed every array twice before); the
+    # store's own folder is listed twice: once to see that something is there, once for
+    # the groups in it
+    for op in ("get_object", "list_objects_v2"):
+        keys = [key for kind, key in sent if kind == op and key != "runs/full.zarr/"]
+        twice = sorted({key for key in keys if keys.count(key) > 1})
+        assert not twice, (op, [(k, keys.count(k)) for k in twice])
+    written = {a["array"]: a["chunks_written"] for a in doc["arrays"]}
+    assert written["scores/feasible"] == written["scores/done"] == 4 * 3, written
     out = tmp_path / "d.npz"
     exported = runner.invoke(app, ["export", url, "-o", str(out)])
     assert exported.exit_code == 0, exported.output

@@ -121,7 +121,14 @@ class Readers:
         return ScoreMatrix(scores, feasible, times, self.theta())
 
     def done(self, group: str) -> np.ndarray:
-        return self.array(done_key(group))[...]
+        """The ``done`` mask of ``group`` (read once under ``reading_once``)."""
+        key = done_key(group)
+        if self._kept is None:
+            return self.array(key)[...]
+        whole, _ = self.mask_chunks(key)
+        if whole is None:
+            raise StoreError(f"{self.path}: {key} has a chunk that does not decode")
+        return whole.copy()
 
     def require_done(self, group: str) -> None:
         """A StoreError naming the unfinished blocks of ``group`` unless every entry's block

@@ -346,7 +346,7 @@ class ScoreStore(Readers, BlockWrites, Verification):
         if array.shape != done.shape:  # a damaged document: never read what it claims
             raise StoreError(f"{result_key(group, ENVIRONMENT)}: shape {array.shape}, not "
                              f"the store's {done.shape}")
-        values = array[...][done]
+        values = self.whole(result_key(group, ENVIRONMENT))[done]
         found, counts = np.unique(values, return_counts=True)
         return {int(k): int(c) for k, c in zip(found, counts, strict=True)}
 

@@ -45,8 +45,14 @@ def refuse_damaged(store: ScoreStore, stages=("instances", "constraints", "score
 
 
 def collect(path) -> dict:
-    """Plain-data status of the store at ``path`` (raises StoreError if it is not ours)."""
+    """Plain-data status of the store at ``path`` (raises StoreError if it is not ours).
+    Each object it needs is read once (:meth:`ScoreStore.reading_once`)."""
     store = ScoreStore.open(path, checked=False)
+    with store.reading_once():
+        return _collect(store)
+
+
+def _collect(store: ScoreStore) -> dict:
     attrs = store.attrs
     found = metadata.check(store, metadata.store_domain(store))
     unreadable = metadata.structural(found)  # never read as their documents now say
@@ -80,7 +86,7 @@ def collect(path) -> dict:
             report["arrays"].append({
                 "array": key, "shape": list(arr.shape),
                 "dims": list(arr.metadata.dimension_names or ()),
-                "chunks_written": int(arr.nchunks_initialized), "chunks": int(arr.nchunks),
+                "chunks_written": store.chunks_written(key), "chunks": int(arr.nchunks),
                 "corrupted": len(damage.corrupted.get(key, ())),
                 "missing": len(damage.missing.get(key, ()))})
     for key in damage.arrays:

@@ -4,12 +4,14 @@ A part of :class:`pipeline.store.ScoreStore`."""
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import zarr
 
 from pipeline.store import integrity
 from pipeline.store.integrity import Damage, digest
-from pipeline.store.layout import done_key, table_key
+from pipeline.store.layout import ENVIRONMENT, done_key, table_key
 
 #: chunks :meth:`Verification.verify` reads at once
 READ_AT_ONCE = 8
@@ -17,6 +19,59 @@ READ_AT_ONCE = 8
 
 class Verification:
     """The store's integrity checks (a mixin of :class:`pipeline.store.ScoreStore`)."""
+
+    #: what :meth:`reading_once` keeps while it is on (None: off)
+    _kept: dict | None = None
+
+    @contextlib.contextmanager
+    def reading_once(self):
+        """Within it, each array's listing of chunks, each ``done`` mask and each environment
+        array are read once and kept.  For readers that look at the store as it is at one
+        moment (``box status``, ``box export``): status otherwise listed every array twice
+        (its chunks checked, then counted), read each mask three times (the blocks done,
+        the entries done, the entries per environment) and each environment array twice,
+        and in object storage each read is a round trip.  Not for a run, whose own writes
+        change them."""
+        self._kept = {}
+        try:
+            yield self
+        finally:
+            self._kept = None
+
+    def _once(self, what: tuple, read):
+        """``read()``, or under :meth:`reading_once` what it gave for ``what`` before."""
+        if self._kept is None:
+            return read()
+        if what not in self._kept:
+            self._kept[what] = read()
+        return self._kept[what]
+
+    def mask_chunks(self, key: str) -> tuple[np.ndarray | None, dict]:
+        """A small array (a ``done`` mask) read whole: (its values, or None when a chunk
+        does not decode; each chunk's values, None for those), kept under
+        :meth:`reading_once`."""
+        return self._once(("values", key), lambda: read_chunks(self.array(key)))
+
+    def whole(self, key: str) -> np.ndarray:
+        """The array ``key`` read whole; under :meth:`reading_once`, from the chunks
+        :meth:`verify` read when it read every chunk (it keeps those of the environment
+        arrays), else in one read."""
+        arr = self.array(key)
+        chunks = list(np.ndindex(*arr.cdata_shape))
+        if self._kept is None or not all(("chunk", key, c) in self._kept for c in chunks):
+            return arr[...]
+        out = np.empty(arr.shape, dtype=arr.dtype)
+        for c in chunks:
+            out[tuple(slice(i * size, (i + 1) * size)
+                      for i, size in zip(c, arr.chunks, strict=True))] = self._kept["chunk", key, c]
+        return out
+
+    def chunks_written(self, key: str) -> int:
+        """How many of the array's chunks exist (Zarr's ``nchunks_initialized``), counted
+        in :meth:`chunk_keys`' listing."""
+        arr, written = self.array(key), self.chunk_keys(key)
+        return sum(arr.metadata.encode_chunk_key(c) in written
+                   for c in np.ndindex(*arr.cdata_shape))
 
     def finished_blocks(self, group: str, rows=None) -> list[tuple[int, ...]]:
         """Blocks whose integrity row is recorded (readable and complete); ``rows``: the
@@ -105,6 +160,8 @@ class Verification:
                     values = await arr.getitem(block)
                 except Exception:  # noqa: BLE001 (any decoding failure means corrupt)
                     return (key, chunk), None
+            if self._kept is not None and key.endswith(f"/{ENVIRONMENT}"):
+                self._kept["chunk", key, chunk] = values  # small; status reads it next
             return (key, chunk), digest(values)
 
         async def read_all():
@@ -125,7 +182,7 @@ class Verification:
         key = done_key(group)
         if not self.has(key):
             return set(np.ndindex(*self.grid(group)))  # the mask is gone: all were done
-        values = chunk_values(self.array(key))
+        values = self.mask_chunks(key)[1]
         if read is not None:
             read.update({(key, chunk): None if v is None else digest(v)
                          for chunk, v in values.items()})
@@ -146,16 +203,17 @@ class Verification:
                     damage.add("corrupted", f"{group}/{name}", chunk)
         return damage
 
-    def chunk_keys(self, key: str) -> set[str]:
-        """Chunk keys (relative to the array) that exist in the store."""
+    def chunk_keys(self, key: str) -> frozenset[str]:
+        """Chunk keys (relative to the array) that exist in the store (one listing, kept
+        under :meth:`reading_once`)."""
         from zarr.core.sync import sync
 
         prefix = f"{key}/"
 
         async def collect():
-            return {k[len(prefix):] async for k in self.zstore.list_prefix(prefix)}
+            return frozenset([k[len(prefix):] async for k in self.zstore.list_prefix(prefix)])
 
-        return sync(collect())
+        return self._once(("keys", key), lambda: sync(collect()))
 
     def array_digests(self, keys) -> dict[str, str]:
         """A digest per array (of its recorded chunk digests, or of its values when it is
@@ -207,6 +265,11 @@ def chunk_values(arr: zarr.Array) -> dict[tuple, np.ndarray | None]:
     """The values of every chunk of a small array (an integrity table, a ``done`` mask) by
     chunk index, None for a chunk that does not decode: the whole array in one read, chunk
     by chunk only when some chunk does not decode (a missing chunk holds the fill value)."""
+    return read_chunks(arr)[1]
+
+
+def read_chunks(arr: zarr.Array) -> tuple[np.ndarray | None, dict[tuple, np.ndarray | None]]:
+    """(the whole array, or None when a chunk does not decode; :func:`chunk_values`)."""
     chunks = list(np.ndindex(*arr.cdata_shape))
     try:
         values = arr[...]
@@ -217,7 +280,7 @@ def chunk_values(arr: zarr.Array) -> dict[tuple, np.ndarray | None]:
                 out[chunk] = arr.blocks[chunk]
             except Exception:  # noqa: BLE001
                 out[chunk] = None
-        return out
-    return {chunk: values[tuple(slice(c * size, (c + 1) * size)
-                                for c, size in zip(chunk, arr.chunks, strict=True))]
-            for chunk in chunks}
+        return None, out
+    return values, {chunk: values[tuple(slice(c * size, (c + 1) * size)
+                                        for c, size in zip(chunk, arr.chunks, strict=True))]
+                    for chunk in chunks}
