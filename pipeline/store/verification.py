@@ -10,6 +10,7 @@ import numpy as np
 import zarr
 
 from pipeline.store import integrity
+from pipeline.store.blocks import block_region
 from pipeline.store.integrity import Damage, digest
 from pipeline.store.layout import ENVIRONMENT, done_key, table_key
 
@@ -62,8 +63,7 @@ class Verification:
             return arr[...]
         out = np.empty(arr.shape, dtype=arr.dtype)
         for c in chunks:
-            out[tuple(slice(i * size, (i + 1) * size)
-                      for i, size in zip(c, arr.chunks, strict=True))] = self._kept["chunk", key, c]
+            out[block_region(c, arr.chunks)] = self._kept["chunk", key, c]
         return out
 
     def chunks_written(self, key: str) -> int:
@@ -281,6 +281,4 @@ def read_chunks(arr: zarr.Array) -> tuple[np.ndarray | None, dict[tuple, np.ndar
             except Exception:  # noqa: BLE001
                 out[chunk] = None
         return None, out
-    return values, {chunk: values[tuple(slice(c * size, (c + 1) * size)
-                                        for c, size in zip(chunk, arr.chunks, strict=True))]
-                    for chunk in chunks}
+    return values, {chunk: values[block_region(chunk, arr.chunks)] for chunk in chunks}
