@@ -706,7 +706,9 @@ from pipeline.sim import collide, fast_check
 from tests import replay
 
 fast_check.compile_kernels()
-kernels = {n: k for n in dir(collide) if isinstance(k := getattr(collide, n), CPUDispatcher)}
+from pipeline.sim import compiled_rrt
+kernels = {f"{m.__name__}.{n}": k for m in (collide, compiled_rrt) for n in dir(m)
+           if isinstance(k := getattr(m, n), CPUDispatcher)}
 before = {n: len(k.signatures) for n, k in kernels.items()}
 for store in replay.stored()["stores"]:
     if store["store"] not in ("grasp_arm.zarr", "grasp_base.zarr", "pick_place.zarr"):
@@ -735,8 +737,9 @@ print(json.dumps({n: [str(s) for s in k.signatures[before[n]:]] for n, k in kern
 
 def test_planning_compiles_no_kernel_that_compile_kernels_did_not():
     """compile_kernels runs before a planning call's wall-clock cap starts so that numba
-    never compiles inside one; that holds only if planning calls the kernels with the
-    argument types it compiled (a read-only array is another type).  A fresh process
+    never compiles inside one; that holds only if planning calls the kernels (the scan's
+    and the compiled RRT-Connect's) with the argument types it compiled (a read-only
+    array is another type).  A fresh process
     plans replay entries of the three Panda domains after compile_kernels."""
     import json
     import subprocess

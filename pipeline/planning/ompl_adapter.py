@@ -169,6 +169,10 @@ class OmplGeometric(Planner):
     def prepare(self, setup: og.SimpleSetup) -> None:
         """Anything to set on the problem before solving (after :meth:`make`)."""
 
+    def problem(self, lower, upper, start, goal, budget: Budget, seed: int):
+        """The search of one call (seeded here): OMPL's problem (:class:`_Problem`)."""
+        return _Problem(self, lower, upper, start, goal, budget, seed)
+
     def plan(self, robot: RobotModel, start, goal, seed: int,
              budget: Budget | None = None) -> PlanResult:
         """Plan start→goal, charging every configuration check to ``budget``.
@@ -242,9 +246,10 @@ class OmplSearch(PlanningTry):
                     return ended
                 if np.array_equal(self.start, self.goal):
                     return self._found(self.start[None])
-                self._problem = _Problem(self.planner, self.lower, self.upper, self.start,
-                                         self.goal, budget, self.seed)
-            path = self._problem.solve(self._stop(allowance))
+                self._problem = self.planner.problem(self.lower, self.upper, self.start,
+                                                     self.goal, budget, self.seed)
+            path = self._problem.solve(self._stop(allowance),
+                                       None if allowance is None else self.used0 + allowance)
         if path is None and not (budget.spent or budget.timed_out) and self._paused:
             self._problem.forget_approximations()
             self._idle_since = time.perf_counter()
@@ -329,8 +334,10 @@ class _Problem:
         planner.prepare(setup)
         self.space, self.setup = space, setup
 
-    def solve(self, stop) -> np.ndarray | None:
-        """Run (or go on with) the search until ``stop()``; the path once one is found."""
+    def solve(self, stop, pause_at: int | None = None) -> np.ndarray | None:
+        """Run (or go on with) the search until ``stop()``; the path once one is found.
+        (``pause_at``, the count at which ``stop()`` pauses, is not needed here: OMPL asks
+        ``stop()`` every iteration.)"""
         self.setup.solve(ob.PlannerTerminationCondition(stop))
         if not self.setup.haveExactSolutionPath():
             return None

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from ompl import geometric as og
 
-from pipeline.planning.ompl_adapter import OmplGeometric
+from pipeline.planning.ompl_adapter import OmplGeometric, ompl_seed
 from pipeline.planning.settings import RRTConnectSettings
 
 
@@ -17,9 +17,22 @@ class RRTConnect(OmplGeometric):
     name = "rrt_connect"
     settings_class = RRTConnectSettings
     resumable = True  # OMPL's RRTConnect is in RESUMABLE
+    #: plan with the robot model's compiled RRT-Connect where it has one (:meth:`problem`;
+    #: the same search and answers as OMPL's; False: always OMPL's, as the tests that
+    #: compare the two set it)
+    compiled = True
 
     def make(self, si):
         planner = og.RRTConnect(si)
         if self.settings.range > 0:
             planner.setRange(self.settings.range)
         return planner
+
+    def problem(self, lower, upper, start, goal, budget, seed: int):
+        """The robot's own compiled RRT-Connect where it has one (``rrt_connect_search``:
+        the sphere checker's, :mod:`pipeline.sim.compiled_rrt`), else OMPL's."""
+        search = getattr(budget.robot, "rrt_connect_search", None) if self.compiled else None
+        problem = None if search is None else search(
+            lower, upper, start, goal, budget, self.settings.range, self.settings.resolution,
+            ompl_seed(seed))
+        return problem or super().problem(lower, upper, start, goal, budget, seed)

@@ -30,7 +30,7 @@ import numpy as np
 import pybullet as pb
 
 from pipeline.planning.base import Robot, check_order, interpolate
-from pipeline.sim import collide, contacts, spheres, wrist
+from pipeline.sim import collide, compiled_rrt, contacts, spheres, wrist
 
 #: extra radius (metres) of the robot's spheres and of other robots' spheres: pybullet
 #: collides meshes as their convex hulls grown by its collision margin (1 mm; measured
@@ -702,9 +702,7 @@ class SphereChecker:
         if refuted is not None:
             return self._refuted_again(refuted, limit)
         exact_before = self.stats["exact"]
-        if self._args is None:
-            self._args = self._motion_args()
-        kind, psi, step, table, chain, packed, memo = self._args
+        kind, psi, step, table, chain, packed, memo = self.scan_args()
         cells = table.state if table is not None else _NO_CELLS
         steps, k, proved = collide.edge_first(a, b, resolution, limit, 0, kind, psi, step,
                                               cells, chain, packed, memo)
@@ -713,8 +711,7 @@ class SphereChecker:
         while k < m:
             if k < 0:  # a wrist cell never computed: compute the cells of the rows left
                 k = -1 - k
-                order = check_order(steps)[k:m]
-                table.uncertain(a + ((order + 1) / steps)[:, None] * (b - a))
+                self.wrist_cells(a, b, steps, k, m)
                 cells = table.state
                 steps, k, proved = collide.edge_first(a, b, resolution, limit, k, kind, psi,
                                                       step, cells, chain, packed, memo)
@@ -724,12 +721,31 @@ class SphereChecker:
                 if self.stats["exact"] == exact_before:
                     self._refuted[key] = k + 1
                 return False, k + 1
-            # the state as interpolate makes it: a + t (b - a), t = (row + 1) / steps
-            if self._ask(a + (int(check_order(steps)[k]) + 1) / steps * (b - a)):
+            if self._ask(self.row(a, b, steps, k)):
                 return False, k + 1
             steps, k, proved = collide.edge_first(a, b, resolution, limit, k + 1, kind, psi,
                                                   step, cells, chain, packed, memo)
         return m >= steps, m
+
+    @staticmethod
+    def row(a: np.ndarray, b: np.ndarray, steps: int, k: int) -> np.ndarray:
+        """The configuration at position k (check order) of the motion a→b of ``steps``
+        states, as ``interpolate`` makes it: a + t (b - a), t = (row + 1) / steps."""
+        return a + (int(check_order(steps)[k]) + 1) / steps * (b - a)
+
+    def wrist_cells(self, a: np.ndarray, b: np.ndarray, steps: int, start: int,
+                    m: int) -> None:
+        """Compute the wrist table's cells of positions ``start`` … m - 1 of the motion
+        a→b (a scan met a cell never computed)."""
+        order = check_order(steps)[start:m]
+        self._motion[3].uncertain(a + ((order + 1) / steps)[:, None] * (b - a))
+
+    def scan_args(self) -> tuple:
+        """What the compiled scan takes besides a motion (:meth:`_motion_args`, made once
+        per checker); for a checker that scans motions."""
+        if self._args is None:
+            self._args = self._motion_args()
+        return self._args
 
     def _refuted_again(self, rows: int, limit: int) -> tuple[bool, int]:
         """:meth:`motion` of a motion it refuted before by geometry alone, its first
@@ -766,9 +782,7 @@ class SphereChecker:
         settled = self._settled.get(key)
         if settled is not None:
             return settled
-        if self._args is None:
-            self._args = self._motion_args()
-        kind, psi, step, table, chain, packed, memo = self._args
+        kind, psi, step, table, chain, packed, memo = self.scan_args()
         cells = table.state if table is not None else _NO_CELLS
         _, k, proved = collide.edge_first(q, q, 1.0, 1, 0, kind, psi, step, cells, chain,
                                           packed, memo)
@@ -1070,6 +1084,16 @@ class CertifiedRobot(Robot):
     def certified(self) -> CertifiedRobot:
         return self  # already
 
+    def rrt_connect_search(self, lower, upper, start, goal, budget, reach: float,
+                           resolution: float, first_seed: int):
+        """OMPL's RRT-Connect compiled with this checker's scan for one planning call
+        (:class:`pipeline.sim.compiled_rrt.CompiledRRTConnect`, the same search and
+        answers), or None where this robot's checks are not the scan's."""
+        if not compiled_rrt.applies(self):
+            return None
+        return compiled_rrt.CompiledRRTConnect(lower, upper, start, goal, budget, reach,
+                                               resolution, first_seed)
+
     def __getattr__(self, name):  # optional capabilities (distance_model) are the model's
         return getattr(self.model, name)
 
@@ -1105,6 +1129,8 @@ def compile_kernels() -> None:
     collide.planar_frames(np.zeros((1, 3)), 1.0, np.empty((1, 1, 3, 4)))
     collide.wrist_cells(np.zeros((1, 7)), np.zeros(2), wrist.STEP, np.ones((2, 2), np.int8),
                         np.empty(1, dtype=np.bool_))
+    compiled_rrt.warm_up(SphereChecker(robot, world, lambda states: None, lambda q: False,
+                                       motion=("base", 1.0)))
     _COMPILED = True
 
 

@@ -1,0 +1,536 @@
+"""OMPL's RRT-Connect compiled together with the sphere checker's scan: the same search as
+``og.RRTConnect`` (OMPL 2.0) checked by a :class:`pipeline.sim.fast_check.SphereChecker`,
+without a call from C++ into Python for every check.
+
+Why.  With the sphere checker, most of a planning call's time was the crossings between
+OMPL and Python (a state check or an edge check is a Python call from OMPL, then numpy
+arrays, the budget, the checker and the compiled scan; docs/results.md), not the checks.
+Here the whole loop is one compiled function that returns to Python only where Python
+must act: a configuration only pybullet can settle, a wrist-table cell never computed,
+the termination condition (every :data:`CLOCK_EVERY` iterations, and whenever the budget
+or the pause's allowance may be reached), and the end.
+
+The same numbers, not similar ones.  Each step below is OMPL's, operation for operation:
+
+* Random numbers (``ompl/util/src/RandomNumbers.cpp``).  ``RNG.setSeed(s)`` seeds the
+  process's seed generator, a ``std::ranlux24_base``; every RNG object OMPL makes draws its
+  own seed from it (``std::uniform_int_distribution<int>(1, 10**9)``, libstdc++'s
+  algorithm) and runs a ``std::mt19937``.  The state sampler is the :data:`SAMPLER_DRAW`-th
+  object made after the seed in a call (found by matching OMPL's samples; the tests compare
+  whole planning calls).  A uniform draw is libstdc++'s ``generate_canonical`` of two
+  32-bit outputs, scaled as ``RNG::uniformReal`` does.
+* The search (``RRTConnect::solve`` and ``growTree``): the trees alternate, the goal tree
+  gets the goal state in the first iteration, a sample is approached by at most ``range``
+  (``interpolate``, ``equalStates``), a goal-tree extension checks the new state and then
+  the edge back, a tree that advanced is connected to the other until trapped or reached.
+  Distances are ``RealVectorStateSpace::distance``'s sum in coordinate order.  Nearest
+  neighbours are found by a linear scan; OMPL's GNAT finds the same nearest state except
+  between two states at exactly the same distance, which the tests have not met.
+* Checks and their count (:class:`pipeline.planning.base.Budget` over the checker): the
+  same rows in the same order, the same calls to pybullet (through the checker's own
+  ``_ask``), the same counts.  The checker's memos of settled states and refuted edges only
+  spare scans, so this loop simply scans again.
+
+The wall-clock cap is looked at every :data:`CLOCK_EVERY` iterations rather than every one
+(a call that times out is not reproducible either way).
+"""
+
+from __future__ import annotations
+
+import math
+import types
+
+import numpy as np
+from numba import njit
+
+from pipeline.sim import collide
+
+#: the seed generator's draw that seeds the state sampler: the RNG objects OMPL makes in a
+#: call before the sampler, counted by matching OMPL's samples (tests/test_compiled_rrt.py)
+SAMPLER_DRAW = 6
+_NEVER = 1 << 62
+#: iterations between two looks at the termination condition (its clock)
+CLOCK_EVERY = 64
+
+# control words (``ctl``)
+_PC, _N, _START_TREE, _HAS_GOAL, _GT, _GSTART, _TGI_START, _NM, _REACH, _DX, _PHASE = range(11)
+_ADDED, _XMOTION, _USED, _CK, _CK_STEPS, _CK_K, _CK_M, _CK_WAIT, _ROWS, _PROVED = range(11, 21)
+_SM, _GM = 21, 22
+_CTL = 23
+
+# program counters
+_AT_START, _AT_ITERATION, _AT_GOAL, _AT_SAMPLE, _AT_GROW, _AT_GROW_STATE, _AT_GROW_EDGE = range(7)
+# check kinds and what a check waits for
+_NONE, _STATE, _EDGE = 0, 1, 2
+_WAIT_EXACT, _WAIT_CELLS = 1, 2
+# a check's outcome
+_FREE, _HIT, _NEED_EXACT, _NEED_CELLS = 0, 1, 2, 3
+# growTree's
+_TRAPPED, _ADVANCED, _REACHED = 0, 1, 2
+
+#: RealVectorStateSpace::equalStates' tolerance per coordinate
+_EQUAL = 2.0 * float(np.finfo(np.float64).eps)
+
+#: what :func:`_advance` returns
+ASK_STOP, ASK_EXACT, ASK_CELLS, SOLVED, NO_START, NO_GOAL = range(6)
+
+
+# -- OMPL's random numbers ------------------------------------------------------------------
+@njit(cache=True)
+def _ranlux(x, st):  # pragma: no cover (compiled)
+    """std::ranlux24_base's next output (x: its 24 words, st: index and carry)."""
+    p, carry = st[0], st[1]
+    ps = p - 10
+    if ps < 0:
+        ps += 24
+    if x[ps] >= x[p] + carry:
+        xi = x[ps] - x[p] - carry
+        carry = 0
+    else:
+        xi = (1 << 24) - x[p] - carry + x[ps]
+        carry = 1
+    x[p] = xi
+    p += 1
+    if p >= 24:
+        p = 0
+    st[0], st[1] = p, carry
+    return xi
+
+
+@njit(cache=True)
+def _seed_draw(x, st):  # pragma: no cover (compiled)
+    """libstdc++'s uniform_int_distribution<int>(1, 10**9) over the 24-bit generator: a
+    draw in [0, 59] (by division, rejecting the top) times 2**24 plus one more output,
+    rejected above the range."""
+    urange = 999999999
+    scaling = ((1 << 24) - 1) // 60
+    past = 60 * scaling
+    while True:
+        r = _ranlux(x, st)
+        while r >= past:
+            r = _ranlux(x, st)
+        tmp = (1 << 24) * (r // scaling)
+        ret = tmp + _ranlux(x, st)
+        if ret <= urange:
+            return ret + 1
+
+
+@njit(cache=True)
+def sampler_seed(first):  # pragma: no cover (compiled)
+    """The state sampler's seed after ``RNG.setSeed(first)`` (:data:`SAMPLER_DRAW`)."""
+    x = np.empty(24, dtype=np.int64)
+    lcg = first if first != 0 else 19780503
+    for i in range(24):
+        lcg = (40014 * lcg) % 2147483563
+        x[i] = lcg % (1 << 24)
+    st = np.zeros(2, dtype=np.int64)
+    st[1] = 1 if x[23] == 0 else 0
+    seed = 0
+    for _ in range(SAMPLER_DRAW + 1):
+        seed = _seed_draw(x, st)
+    return seed
+
+
+@njit(cache=True)
+def mt_seed(seed, mt):  # pragma: no cover (compiled)
+    """std::mt19937(seed) into mt (624 words, then the index)."""
+    mt[0] = seed & 0xFFFFFFFF
+    for i in range(1, 624):
+        prev = mt[i - 1]
+        mt[i] = (1812433253 * (prev ^ (prev >> 30)) + i) & 0xFFFFFFFF
+    mt[624] = 624
+
+
+@njit(cache=True)
+def mt_next(mt):  # pragma: no cover (compiled)
+    """std::mt19937's next 32-bit output."""
+    if mt[624] >= 624:
+        for i in range(624):
+            y = (mt[i] & 0x80000000) | (mt[(i + 1) % 624] & 0x7FFFFFFF)
+            v = mt[(i + 397) % 624] ^ (y >> 1)
+            if y & 1:
+                v ^= 0x9908B0DF
+            mt[i] = v
+        mt[624] = 0
+    y = mt[mt[624]]
+    mt[624] += 1
+    y ^= y >> 11
+    y ^= (y << 7) & 0x9D2C5680
+    y ^= (y << 15) & 0xEFC60000
+    y ^= y >> 18
+    return y
+
+
+@njit(cache=True)
+def uniform01(mt):  # pragma: no cover (compiled)
+    """libstdc++'s generate_canonical<double, 53> of mt19937: two outputs, low first."""
+    s = float(mt_next(mt))
+    s += float(mt_next(mt)) * 4294967296.0
+    r = s / 18446744073709551616.0
+    if r >= 1.0:
+        r = np.nextafter(1.0, 0.0)
+    return r
+
+
+# -- the search -------------------------------------------------------------------------------
+@njit(cache=True)
+def _distance(a, b):  # pragma: no cover (compiled)
+    s = 0.0
+    for i in range(a.shape[0]):
+        diff = a[i] - b[i]
+        s += diff * diff
+    return math.sqrt(s)
+
+
+@njit(cache=True)
+def _nearest(X, tr, n, tree, q):  # pragma: no cover (compiled)
+    best, at = np.inf, -1
+    for i in range(n):
+        if tr[i] == tree:
+            d = _distance(X[i], q)
+            if d < best:
+                best, at = d, i
+    return at
+
+
+@njit(cache=True)
+def _add(ctl, X, par, tr, q, parent, tree):  # pragma: no cover (compiled)
+    n = ctl[_N]
+    X[n, :] = q
+    par[n], tr[n] = parent, tree
+    ctl[_N] = n + 1
+    return n
+
+
+@njit(cache=True)
+def _begin(ctl, ca, cb, kind, a, b, limit):  # pragma: no cover (compiled)
+    """Start a check (the budget's ``states_free`` of one state a, or ``edge_free`` a→b);
+    False: the budget is spent, the check refused uncounted."""
+    if ctl[_USED] >= limit:
+        return False
+    ca[:] = a
+    cb[:] = b
+    ctl[_CK], ctl[_CK_WAIT], ctl[_CK_K] = kind, 0, 0
+    return True
+
+
+@njit(cache=True)
+def _scan(kind, a, b, resolution, limit, start, geo):  # pragma: no cover (compiled)
+    return collide._scan(kind, collide._NO_FRAMES, collide._NO_PRE, a, b, resolution, limit,
+                         start, *geo)
+
+
+@njit(cache=True)
+def _run_check(ctl, ca, cb, resolution, limit, answer, kind, geo):  # pragma: no cover
+    """Go on with the check begun by :func:`_begin` (``answer``: pybullet's, 1 collides,
+    for the row it waits for): _FREE, _HIT, or what it needs from Python (the row's or the
+    cells' position in ``ctl``).  A finished check adds its rows to the budget."""
+    wait = ctl[_CK_WAIT]
+    ctl[_CK_WAIT] = 0
+    if ctl[_CK] == _STATE:  # SphereChecker._one: settle by the scan, else ask pybullet
+        if wait == _WAIT_EXACT:
+            hit = answer != 0
+        else:
+            _, k, proved = _scan(kind, ca, ca, 1.0, 1, 0, geo)
+            if k < 0:
+                ctl[_CK_WAIT] = _WAIT_CELLS
+                return _NEED_CELLS
+            if k < 1 and not proved:
+                ctl[_CK_WAIT] = _WAIT_EXACT
+                return _NEED_EXACT
+            hit = k < 1
+            if hit:
+                ctl[_PROVED] += 1
+        ctl[_CK] = _NONE
+        ctl[_ROWS] += 1
+        ctl[_USED] += 1
+        return _HIT if hit else _FREE
+    # SphereChecker.motion within the budget's rows left
+    rows = limit - ctl[_USED]
+    k = ctl[_CK_K]
+    if wait == _WAIT_EXACT:
+        if answer != 0:
+            ctl[_CK] = _NONE
+            ctl[_USED] += k + 1
+            return _HIT
+        steps, k, proved = _scan(kind, ca, cb, resolution, rows, k + 1, geo)
+    elif wait == _WAIT_CELLS:
+        steps, k, proved = _scan(kind, ca, cb, resolution, rows, k, geo)
+    else:
+        steps, k, proved = _scan(kind, ca, cb, resolution, rows, 0, geo)
+        ctl[_ROWS] += min(steps, rows)
+    m = min(steps, rows)
+    ctl[_CK_STEPS], ctl[_CK_M] = steps, m
+    if k < m:
+        if k < 0:
+            ctl[_CK_K], ctl[_CK_WAIT] = -1 - k, _WAIT_CELLS
+            return _NEED_CELLS
+        if proved:
+            ctl[_PROVED] += 1
+            ctl[_CK] = _NONE
+            ctl[_USED] += k + 1
+            return _HIT
+        ctl[_CK_K], ctl[_CK_WAIT] = k, _WAIT_EXACT
+        return _NEED_EXACT
+    ctl[_CK] = _NONE
+    ctl[_USED] += m
+    return _FREE if m >= steps else _HIT
+
+
+@njit(cache=True)
+def _advance(ctl, X, par, tr, rs, xs, ca, cb, mt, lower, upper, start, goal, reach_max,
+             resolution, limit, pause, ptc_false, answer, kind, geo):  # pragma: no cover
+    """Run the search from where ``ctl`` left it until Python must act (the return value:
+    ``ASK_*``) or it ends (``SOLVED``, ``NO_START``, ``NO_GOAL``).  ``ptc_false``: Python
+    has just found the termination condition false for the iteration about to start."""
+    d = lower.shape[0]
+    clock = CLOCK_EVERY
+    while True:
+        pc = ctl[_PC]
+        if pc == _AT_START:  # pis_.nextStart(): the start state, checked
+            if ctl[_CK] == _NONE and not _begin(ctl, ca, cb, _STATE, start, start, limit):
+                return NO_START
+            out = _run_check(ctl, ca, cb, resolution, limit, answer, kind, geo)
+            if out == _NEED_EXACT:
+                return ASK_EXACT
+            if out == _NEED_CELLS:
+                return ASK_CELLS
+            if out == _HIT:
+                return NO_START
+            _add(ctl, X, par, tr, start, -1, 0)
+            ctl[_PC] = _AT_ITERATION
+        elif pc == _AT_ITERATION:  # while (!ptc)
+            if not ptc_false:
+                if ctl[_USED] >= limit or ctl[_USED] >= pause or clock == 0:
+                    return ASK_STOP
+            ptc_false = False
+            clock -= 1
+            ctl[_GT] = 0 if ctl[_START_TREE] else 1
+            ctl[_TGI_START] = ctl[_START_TREE]
+            ctl[_START_TREE] = 1 - ctl[_START_TREE]
+            ctl[_PC] = _AT_SAMPLE if ctl[_HAS_GOAL] else _AT_GOAL
+        elif pc == _AT_GOAL:  # pis_.nextGoal(ptc): the goal state, checked
+            if ctl[_CK] == _NONE and not _begin(ctl, ca, cb, _STATE, goal, goal, limit):
+                return NO_GOAL
+            out = _run_check(ctl, ca, cb, resolution, limit, answer, kind, geo)
+            if out == _NEED_EXACT:
+                return ASK_EXACT
+            if out == _NEED_CELLS:
+                return ASK_CELLS
+            if out == _HIT:
+                return NO_GOAL
+            _add(ctl, X, par, tr, goal, -1, 1)
+            ctl[_HAS_GOAL] = 1
+            ctl[_PC] = _AT_SAMPLE
+        elif pc == _AT_SAMPLE:  # sampler_->sampleUniform(rstate), then growTree(tree)
+            for i in range(d):
+                rs[i] = (upper[i] - lower[i]) * uniform01(mt) + lower[i]
+            ctl[_PHASE], ctl[_GSTART] = 1, ctl[_TGI_START]
+            ctl[_PC] = _AT_GROW
+        else:
+            if pc == _AT_GROW:
+                grown = -1
+                nm = _nearest(X, tr, ctl[_N], ctl[_GT], rs)
+                ctl[_NM] = nm
+                dist = _distance(X[nm], rs)
+                ctl[_REACH], ctl[_DX] = 1, 0
+                if dist > reach_max:
+                    t = reach_max / dist
+                    same = True
+                    for i in range(d):
+                        xs[i] = X[nm, i] + (rs[i] - X[nm, i]) * t
+                        same = same and abs(X[nm, i] - xs[i]) <= _EQUAL
+                    ctl[_REACH], ctl[_DX] = 0, 1
+                    if same:
+                        grown = _TRAPPED
+                if grown < 0:
+                    dstate = xs if ctl[_DX] else rs
+                    if ctl[_GSTART]:
+                        if not _begin(ctl, ca, cb, _EDGE, X[nm], dstate, limit):
+                            grown = _TRAPPED
+                        ctl[_PC] = _AT_GROW_EDGE
+                    else:
+                        if not _begin(ctl, ca, cb, _STATE, dstate, dstate, limit):
+                            grown = _TRAPPED
+                        ctl[_PC] = _AT_GROW_STATE
+                    if grown < 0:
+                        continue
+            elif pc == _AT_GROW_STATE:  # isValid(dstate), then the edge back to nmotion
+                out = _run_check(ctl, ca, cb, resolution, limit, answer, kind, geo)
+                if out == _NEED_EXACT:
+                    return ASK_EXACT
+                if out == _NEED_CELLS:
+                    return ASK_CELLS
+                if out == _HIT:
+                    grown = _TRAPPED
+                else:
+                    dstate = xs if ctl[_DX] else rs
+                    ctl[_PC] = _AT_GROW_EDGE
+                    if _begin(ctl, ca, cb, _EDGE, dstate, X[ctl[_NM]], limit):
+                        continue
+                    grown = _TRAPPED
+            else:  # _AT_GROW_EDGE
+                out = _run_check(ctl, ca, cb, resolution, limit, answer, kind, geo)
+                if out == _NEED_EXACT:
+                    return ASK_EXACT
+                if out == _NEED_CELLS:
+                    return ASK_CELLS
+                if out == _HIT:
+                    grown = _TRAPPED
+                else:
+                    dstate = xs if ctl[_DX] else rs
+                    ctl[_XMOTION] = _add(ctl, X, par, tr, dstate, ctl[_NM], ctl[_GT])
+                    grown = _REACHED if ctl[_REACH] else _ADVANCED
+            # what solve() does with growTree's answer
+            if ctl[_PHASE] == 1:
+                if grown == _TRAPPED:
+                    ctl[_PC] = _AT_ITERATION
+                    continue
+                ctl[_ADDED] = ctl[_XMOTION]
+                if grown != _REACHED:
+                    rs[:] = xs
+                ctl[_TGI_START] = ctl[_START_TREE]
+                ctl[_GT] = 0 if ctl[_START_TREE] else 1
+                ctl[_GSTART], ctl[_PHASE], ctl[_PC] = ctl[_TGI_START], 2, _AT_GROW
+                continue
+            if grown == _ADVANCED:
+                ctl[_PC] = _AT_GROW
+                continue
+            if grown == _TRAPPED:
+                ctl[_PC] = _AT_ITERATION
+                continue
+            sm = ctl[_XMOTION] if ctl[_TGI_START] else ctl[_ADDED]
+            gm = ctl[_ADDED] if ctl[_TGI_START] else ctl[_XMOTION]
+            if par[sm] >= 0:  # one step back: no state twice on the path
+                sm = par[sm]
+            else:
+                gm = par[gm]
+            ctl[_SM], ctl[_GM] = sm, gm
+            return SOLVED
+
+
+class CompiledRRTConnect:
+    """One planning call's search (:class:`pipeline.planning.ompl_adapter._Problem`'s
+    interface: :meth:`solve` until a path or the termination condition, again after a
+    pause).  ``budget.robot`` must be a robot whose checks are a scanning
+    :class:`~pipeline.sim.fast_check.SphereChecker`'s (:func:`applies`); ``reach``: the
+    planner's range (0: OMPL's default); ``first_seed``: the seed OMPL's would be given
+    (:func:`pipeline.planning.ompl_adapter.ompl_seed`)."""
+
+    def __init__(self, lower, upper, start, goal, budget, reach: float, resolution: float,
+                 first_seed: int):
+        d = len(lower)
+        self.lower = np.ascontiguousarray(lower, dtype=float)
+        self.upper = np.ascontiguousarray(upper, dtype=float)
+        self.start = np.ascontiguousarray(start, dtype=float)
+        self.goal = np.ascontiguousarray(goal, dtype=float)
+        self.budget, self.resolution = budget, float(resolution)
+        if reach <= 0:  # SelfConfig: 0.2 x the space's extent, summed in coordinate order
+            extent = 0.0
+            for lo, hi in zip(self.lower.tolist(), self.upper.tolist(), strict=True):
+                extent += (hi - lo) * (hi - lo)
+            reach = math.sqrt(extent) * 0.2
+        self.reach = float(reach)
+        nodes = max(budget.limit - budget.used, 0) + 2  # one per counted check, the roots
+        self.X = np.empty((nodes, d))
+        self.par = np.empty(nodes, dtype=np.int64)
+        self.tr = np.empty(nodes, dtype=np.int8)
+        self.rs, self.xs, self.ca, self.cb = (np.empty(d) for _ in range(4))
+        self.ctl = np.zeros(_CTL, dtype=np.int64)
+        self.ctl[_START_TREE] = 1
+        self.mt = np.empty(625, dtype=np.int64)
+        mt_seed(sampler_seed(first_seed), self.mt)
+
+    def solve(self, stop, pause_at: int | None = None) -> np.ndarray | None:
+        """Search until a path (returned) or ``stop()`` (None); ``pause_at``: the budget's
+        count at which ``stop()`` pauses the try, if it does."""
+        budget, ctl = self.budget, self.ctl
+        if not applies(budget.robot):
+            raise RuntimeError("compiled RRT-Connect: the robot was rebound to one whose "
+                               "checks are not a scanning sphere checker's")
+        checker = budget.robot.checker
+        pause = _NEVER if pause_at is None else int(pause_at)
+        kind, psi, step, table, chain, packed, memo = checker.scan_args()
+        ptc_false, answer = False, 0
+        while True:
+            cells = table.state if table is not None else collide._NO_CELLS
+            geo = (collide.SEGMENT, psi, step, cells, *chain, *packed, *memo)
+            rows, proved = ctl[_ROWS], ctl[_PROVED]
+            ctl[_USED] = budget.used
+            out = _advance(ctl, self.X, self.par, self.tr, self.rs, self.xs, self.ca, self.cb,
+                           self.mt, self.lower, self.upper, self.start, self.goal, self.reach,
+                           self.resolution, budget.limit, pause, ptc_false, answer,
+                           kind, geo)
+            budget.used = int(ctl[_USED])
+            checker.stats["rows"] += int(ctl[_ROWS] - rows)
+            checker.stats["proved"] += int(ctl[_PROVED] - proved)
+            ptc_false, answer = False, 0
+            if out == ASK_STOP:
+                if stop():
+                    return None
+                ptc_false = True
+            elif out == ASK_EXACT:
+                answer = int(checker._ask(self._row()))
+            elif out == ASK_CELLS:
+                self._cells(table)
+            elif out == SOLVED:
+                return self._path()
+            else:  # NO_START, NO_GOAL: OMPL gives up (a refused goal: it waits for the stop)
+                if out == NO_GOAL and not stop():
+                    budget.timed_out = True
+                return None
+
+    def _row(self) -> np.ndarray:
+        """The configuration the check waits for, as the checker makes it."""
+        ctl = self.ctl
+        if ctl[_CK] == _STATE:
+            return self.ca.copy()
+        return self.budget.robot.checker.row(self.ca, self.cb, int(ctl[_CK_STEPS]),
+                                             int(ctl[_CK_K]))
+
+    def _cells(self, table) -> None:
+        ctl = self.ctl
+        if ctl[_CK] == _STATE:
+            table.uncertain(self.ca[None])
+            return
+        self.budget.robot.checker.wrist_cells(self.ca, self.cb, int(ctl[_CK_STEPS]),
+                                              int(ctl[_CK_K]), int(ctl[_CK_M]))
+
+    def _path(self) -> np.ndarray:
+        """Start root … ``_SM``, then ``_GM`` … goal root (RRTConnect's solution path)."""
+        ctl, par = self.ctl, self.par
+        head, tail = [], []
+        i = int(ctl[_SM])
+        while i >= 0:
+            head.append(i)
+            i = int(par[i])
+        i = int(ctl[_GM])
+        while i >= 0:
+            tail.append(i)
+            i = int(par[i])
+        return self.X[head[::-1] + tail].copy()
+
+    def forget_approximations(self) -> None:
+        """Nothing to forget: only an exact path is ever kept."""
+
+
+def warm_up(checker) -> None:
+    """Load (or compile) :func:`_advance` with the argument types :meth:`CompiledRRTConnect.solve`
+    passes for ``checker`` (a scanning sphere checker): a search whose budget is spent
+    before its first check."""
+    robot = types.SimpleNamespace(checker=checker, check=checker.__call__,
+                                  check_motion=checker.motion)
+    budget = types.SimpleNamespace(robot=robot, limit=0, used=0, timed_out=False)
+    d = 3
+    CompiledRRTConnect(np.zeros(d), np.ones(d), np.zeros(d), np.ones(d), budget, 0.0, 0.01,
+                       1).solve(lambda: True)
+
+
+def applies(robot) -> bool:
+    """Whether :class:`CompiledRRTConnect` can plan for ``robot``: its checks and edge
+    checks are a scanning sphere checker's own methods."""
+    checker = getattr(robot, "checker", None)
+    scan_args = getattr(checker, "scan_args", None)
+    return (scan_args is not None and checker._motion is not None
+            and getattr(robot, "check", None) == checker.__call__
+            and getattr(robot, "check_motion", None) == checker.motion)
