@@ -29,12 +29,13 @@ TrajOpt runs on grasp_arm and grasp_base only (the paper's TrajOpt stores).
 Run: python benchmarks/bench_paper_scale.py [--raw 30] [--instances 24] [--constraints 60]
          [--cores 2] [--repeats 3] [--only grasp_arm|grasp_base|pick_place]
          [--planners rrt_connect,trajopt]
-         [--real grasp_base:1000x1000 | grasp_arm:1800x162:trajopt]
+         [--real grasp_base:1000x1000 | grasp_arm:1800x162:trajopt] [--ompl-too]
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import shutil
 import statistics
@@ -76,6 +77,10 @@ def child(job: dict) -> None:
     from pipeline.domains.cache import domain_for
     from pipeline.store import domain_spec_of
 
+    if job.get("ompl"):  # RRT-Connect through OMPL's own objects, as before the compiled one
+        from pipeline.planning.rrt_connect import RRTConnect
+
+        RRTConnect.compiled = False
     spec = domain_spec_of(run_config(job["domain"], job["planner"]))
     domain = domain_for(spec)
     seed = job["seed"]
@@ -102,20 +107,27 @@ def child(job: dict) -> None:
                                    theta, 0)
     cpu, wall = time.process_time() - c0, time.perf_counter() - w0
     n = arrays["feasible"].size
+    digest = hashlib.sha256(b"".join(np.ascontiguousarray(arrays[k]).tobytes() for k in (
+        "status", "feasible", "step", "checks", "length", "score"))).hexdigest()
     print(json.dumps({"entry_cpu_s": cpu / n, "entry_wall_s": wall / n, "entries": n,
+                      "digest": digest,
                       "feasible": float(arrays["feasible"].mean()), "raw_cpu_s": raw_cpu,
                       "raw_feasible": float(raw["feasible"].mean()),
                       "constraints": len(theta)}))
 
 
-def measure(domain: str, planner: str, args) -> dict:
+def measure(domain: str, planner: str, args, ompl: bool = False) -> dict:
     """The sample's figures, each the median of ``--repeats`` fresh processes (the same
-    entries every time), with the range of the CPU time per entry ("entry_cpu_range")."""
+    entries every time), with the range of the CPU time per entry ("entry_cpu_range") and
+    the digest of the block's results (None where runs disagreed).  ``ompl``: RRT-Connect
+    through OMPL's objects rather than compiled with the sphere checker's scan."""
     job = {"domain": domain, "planner": planner, "seed": args.seed, "raw": args.raw,
-           "instances": args.instances, "constraints": args.constraints}
-    runs = [run_child(__file__, job, ROOT, f"{domain} × {planner}")
+           "instances": args.instances, "constraints": args.constraints, "ompl": ompl}
+    runs = [run_child(__file__, job, ROOT, f"{domain} × {planner}{' (OMPL)' if ompl else ''}")
             for _ in range(args.repeats)]
+    digests = {run.pop("digest") for run in runs}
     row = {key: statistics.median(run[key] for run in runs) for key in runs[0]}
+    row["digest"] = digests.pop() if len(digests) == 1 else None
     cpu = [run["entry_cpu_s"] for run in runs]
     row["entry_cpu_range"] = (min(cpu), max(cpu))
     return row
@@ -186,6 +198,10 @@ def main() -> None:
     ap.add_argument("--real", type=real_size, help="DOMAIN:NxM[:PLANNER], one real "
                     "stage=generate run (RRT-Connect unless PLANNER), e.g. "
                     "grasp_base:1000x1000 or grasp_arm:1800x162:trajopt")
+    ap.add_argument("--ompl-too", action="store_true",
+                    help="also each RRT-Connect sample through OMPL's objects (the search "
+                    "before it was compiled with the scan): ms/entry side by side, and "
+                    "whether the results are identical")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
@@ -202,6 +218,8 @@ def main() -> None:
             if planner in wanted:
                 rows[domain, planner] = measure(domain, planner, args)
     report(rows, args)
+    if args.ompl_too:
+        compare_ompl(rows, args)
     if args.real:
         domain, n, m, planner = args.real
         row = rows.get((domain, planner)) or measure(domain, planner, args)
@@ -237,6 +255,24 @@ def report(rows: dict, args) -> None:
     if "rrt_connect" in totals and len([1 for d, p in rows if p == "rrt_connect"]) == 3:
         met = "met" if totals["rrt_connect"] <= TARGET_S * 2 / c else "not met"
         print(f"  target: the three RRT-Connect stores <= 1 h on 2 cores: {met}")
+
+
+def compare_ompl(rows: dict, args) -> None:
+    """Each RRT-Connect sample again through OMPL's objects: ms/entry of both, the ratio,
+    and whether the two blocks' results are identical (status, feasibility, failed step,
+    checks, length, score: the digests)."""
+    print("\nRRT-Connect compiled with the scan against OMPL's objects (the same entries, "
+          f"medians of {args.repeats} runs each)")
+    print(f"  {'domain':<11}{'compiled ms':>12}{'OMPL ms':>9}{'OMPL / compiled':>17}"
+          f"{'results':>11}")
+    for (domain, planner), row in rows.items():
+        if planner != "rrt_connect":
+            continue
+        ompl = measure(domain, planner, args, ompl=True)
+        same = row["digest"] is not None and row["digest"] == ompl["digest"]
+        print(f"  {domain:<11}{row['entry_cpu_s'] * 1e3:>12.2f}{ompl['entry_cpu_s'] * 1e3:>9.2f}"
+              f"{ompl['entry_cpu_s'] / row['entry_cpu_s']:>16.2f}x"
+              f"{'identical' if same else 'DIFFER':>11}")
 
 
 if __name__ == "__main__":

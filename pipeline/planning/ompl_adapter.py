@@ -160,6 +160,10 @@ class OmplGeometric(Planner):
     #: False: :meth:`start` plans the whole call in the first advance; a subclass whose
     #: algorithm resumes exactly (:data:`RESUMABLE`, :class:`OmplSearch`) says so
     resumable = False
+    #: search and shortcut with the robot model's compiled versions where it has them
+    #: (the same results; False: always OMPL's objects and the Python shortcutter, as the
+    #: tests that compare the two set it)
+    compiled = True
 
     def make(self, si) -> ob.Planner:
         """The OMPL planner for the space information ``si`` (called once per call, after
@@ -260,7 +264,7 @@ class OmplSearch(PlanningTry):
             return self._failed(status)
         path = shortcut(path, budget, np.random.default_rng([self.seed, 1]),
                         self.planner.settings.resolution,
-                        self.planner.settings.shortcut_attempts)
+                        self.planner.settings.shortcut_attempts, self.planner.compiled)
         return self._found(path)
 
     def _stop(self, allowance):

@@ -17,10 +17,6 @@ class RRTConnect(OmplGeometric):
     name = "rrt_connect"
     settings_class = RRTConnectSettings
     resumable = True  # OMPL's RRTConnect is in RESUMABLE
-    #: plan with the robot model's compiled RRT-Connect where it has one (:meth:`problem`;
-    #: the same search and answers as OMPL's; False: always OMPL's, as the tests that
-    #: compare the two set it)
-    compiled = True
 
     def make(self, si):
         planner = og.RRTConnect(si)

@@ -9,10 +9,21 @@ from pipeline.planning.base import Budget
 
 
 def shortcut(path: np.ndarray, budget: Budget, rng: np.random.Generator, resolution: float,
-             attempts: int) -> np.ndarray:
+             attempts: int, compiled: bool = True) -> np.ndarray:
     """At most ``attempts`` tries, and none once the budget is spent; the pairs of
-    waypoints are ``sorted(rng.choice(len(path), size=2, replace=False))`` (:class:`Pairs`)."""
+    waypoints are ``sorted(rng.choice(len(path), size=2, replace=False))`` (:class:`Pairs`).
+    A robot model with its own compiled shortcutting (``shortcut_search``: the sphere
+    checker's) does the same with it, unless ``compiled`` is False."""
     pairs = Pairs(rng)
+    search = getattr(budget.robot, "shortcut_search", None) if compiled else None
+    if search is not None and pairs.start is not None:
+        try:
+            shorter = search(path, budget, pairs, resolution, attempts)
+        finally:
+            pairs.close()
+        if shorter is not None:
+            return shorter
+        pairs = Pairs(rng)
     try:
         for _ in range(attempts):
             if len(path) < 3 or budget.spent:
@@ -49,9 +60,13 @@ class Pairs:
 
     def _next(self) -> int:
         if self.used == len(self.words):
-            self.words += self.bits.random_raw(32).view(np.uint32).tolist()
+            self.more()
         self.used += 1
         return self.words[self.used - 1]
+
+    def more(self) -> None:
+        """64 more 32-bit outputs in ``words``."""
+        self.words += self.bits.random_raw(32).view(np.uint32).tolist()
 
     def _bounded(self, r: int) -> int:
         """Uniform in [0, r] (numpy's buffered_bounded_lemire_uint32)."""

@@ -514,6 +514,104 @@ class CompiledRRTConnect:
         """Nothing to forget: only an exact path is ever kept."""
 
 
+# -- shortcutting -----------------------------------------------------------------------------
+@njit(cache=True)
+def _bounded(words, pos, r):  # pragma: no cover (compiled)
+    """numpy's bounded draw in [0, r] (Lemire's, :class:`pipeline.planning.shortcut.Pairs`)
+    from 32-bit ``words`` at ``pos``: (value, next pos), or (-1, pos) when they run out."""
+    excl = r + 1
+    if pos >= words.shape[0]:
+        return -1, pos
+    m = words[pos] * excl
+    pos += 1
+    if m & 0xFFFFFFFF < excl:
+        threshold = (0xFFFFFFFF - r) % excl
+        while m & 0xFFFFFFFF < threshold:
+            if pos >= words.shape[0]:
+                return -1, pos
+            m = words[pos] * excl
+            pos += 1
+    return m >> 32, pos
+
+
+@njit(cache=True)
+def _shortcut(ctl, path, words, ca, cb, resolution, limit, attempts, answer, kind,
+              geo):  # pragma: no cover (compiled)
+    """:func:`pipeline.planning.shortcut.shortcut` from where ``ctl`` left it: the path's
+    first ``ctl[_N]`` rows (shortened in place), attempt ``ctl[_PC]``, word ``ctl[_ADDED]``
+    next.  Returns SOLVED at the end, ASK_EXACT / ASK_CELLS for an edge check, ASK_STOP
+    when the words ran out (Python adds more; the draw starts again)."""
+    while True:
+        if ctl[_CK] != _NONE:  # an edge check under way
+            out = _run_check(ctl, ca, cb, resolution, limit, answer, kind, geo)
+            if out == _NEED_EXACT:
+                return ASK_EXACT
+            if out == _NEED_CELLS:
+                return ASK_CELLS
+            if out == _FREE:  # path[:i + 1] + path[j:]
+                i, j, n = ctl[_NM], ctl[_XMOTION], ctl[_N]
+                for r in range(j, n):
+                    path[i + 1 + r - j, :] = path[r]
+                ctl[_N] = n - (j - i - 1)
+        if ctl[_PC] >= attempts or ctl[_N] < 3 or ctl[_USED] >= limit:
+            return SOLVED
+        n, pos = ctl[_N], ctl[_ADDED]
+        v1 = 0
+        if n > 2:
+            v1, pos = _bounded(words, pos, n - 2)
+        v2 = -1
+        if v1 >= 0:
+            v2, pos = _bounded(words, pos, n - 1)
+        if v2 < 0 or pos >= words.shape[0]:
+            return ASK_STOP
+        pos += 1  # the shuffle of the pair
+        if v2 == v1:
+            v2 = n - 1
+        i, j = min(v1, v2), max(v1, v2)
+        ctl[_PC] += 1
+        ctl[_ADDED] = pos
+        if j - i < 2:
+            continue
+        ctl[_NM], ctl[_XMOTION] = i, j
+        _begin(ctl, ca, cb, _EDGE, path[i], path[j], limit)
+
+
+def shortcut(path: np.ndarray, budget, pairs, resolution: float, attempts: int) -> np.ndarray:
+    """:func:`pipeline.planning.shortcut.shortcut` compiled with the checker's scan: the same
+    pairs (``pairs``' words: numpy's draws), checks and path; ``pairs`` is left as after
+    those draws (its ``used``)."""
+    checker = budget.robot.checker
+    kind, psi, step, table, chain, packed, memo = checker.scan_args()
+    path = np.array(path, dtype=float)
+    ctl = np.zeros(_CTL, dtype=np.int64)
+    ctl[_N], ctl[_ADDED] = len(path), pairs.used
+    ca, cb = np.empty(path.shape[1]), np.empty(path.shape[1])
+    resolution, answer = float(resolution), 0
+    while True:
+        words = np.array(pairs.words, dtype=np.int64)
+        cells = table.state if table is not None else collide._NO_CELLS
+        geo = (collide.SEGMENT, psi, step, cells, *chain, *packed, *memo)
+        rows, proved = ctl[_ROWS], ctl[_PROVED]
+        ctl[_USED] = budget.used
+        out = _shortcut(ctl, path, words, ca, cb, resolution, budget.limit, attempts, answer,
+                        kind, geo)
+        budget.used = int(ctl[_USED])
+        checker.stats["rows"] += int(ctl[_ROWS] - rows)
+        checker.stats["proved"] += int(ctl[_PROVED] - proved)
+        answer = 0
+        if out == ASK_STOP:
+            pairs.more()
+        elif out == ASK_EXACT:
+            answer = int(checker._ask(checker.row(ca, cb, int(ctl[_CK_STEPS]),
+                                                  int(ctl[_CK_K]))))
+        elif out == ASK_CELLS:
+            checker.wrist_cells(ca, cb, int(ctl[_CK_STEPS]), int(ctl[_CK_K]),
+                                int(ctl[_CK_M]))
+        else:
+            pairs.used = int(ctl[_ADDED])
+            return path[: ctl[_N]]
+
+
 def warm_up(checker) -> None:
     """Load (or compile) :func:`_advance` with the argument types :meth:`CompiledRRTConnect.solve`
     passes for ``checker`` (a scanning sphere checker): a search whose budget is spent
@@ -524,6 +622,8 @@ def warm_up(checker) -> None:
     d = 3
     CompiledRRTConnect(np.zeros(d), np.ones(d), np.zeros(d), np.ones(d), budget, 0.0, 0.01,
                        1).solve(lambda: True)
+    pairs = types.SimpleNamespace(words=[0] * 8, used=0)
+    shortcut(np.zeros((3, d)), budget, pairs, 0.01, 1)
 
 
 def applies(robot) -> bool:

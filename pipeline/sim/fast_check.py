@@ -1094,6 +1094,14 @@ class CertifiedRobot(Robot):
         return compiled_rrt.CompiledRRTConnect(lower, upper, start, goal, budget, reach,
                                                resolution, first_seed)
 
+    def shortcut_search(self, path, budget, pairs, resolution: float, attempts: int):
+        """:func:`pipeline.planning.shortcut.shortcut` compiled with this checker's scan
+        (:func:`pipeline.sim.compiled_rrt.shortcut`, the same pairs, checks and path), or
+        None where this robot's checks are not the scan's."""
+        if not compiled_rrt.applies(self):
+            return None
+        return compiled_rrt.shortcut(path, budget, pairs, resolution, attempts)
+
     def __getattr__(self, name):  # optional capabilities (distance_model) are the model's
         return getattr(self.model, name)
 
