@@ -182,3 +182,22 @@ def test_the_compiled_search_plans_where_the_sphere_checker_checks(monkeypatch):
         finally:
             domain.close()
         assert made and set(made) == {expected}
+
+
+def test_the_wall_clock_cap_ends_a_long_search():
+    """The compiled search looks at the termination condition every CLOCK_CHECKS checks
+    (OMPL: every iteration): a cap already passed ends a search of about 1900 checks as
+    "timeout", long before its end."""
+    domain = load_domain("grasp_arm", planner={"name": "rrt_connect", "wall_cap_s": 1e-9})
+    try:
+        capped = domain.plan(domain.sample_instance(5), 67, 5067)
+    finally:
+        domain.close()
+    whole = load_domain("grasp_arm")
+    try:
+        uncapped = whole.plan(whole.sample_instance(5), 67, 5067)
+    finally:
+        whole.close()
+    assert uncapped.feasible and uncapped.checks > 4 * C.CLOCK_CHECKS
+    assert capped.status == Status.TIMEOUT
+    assert capped.checks < 2 * C.CLOCK_CHECKS

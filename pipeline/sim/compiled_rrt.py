@@ -7,8 +7,8 @@ OMPL and Python (a state check or an edge check is a Python call from OMPL, then
 arrays, the budget, the checker and the compiled scan; docs/results.md), not the checks.
 Here the whole loop is one compiled function that returns to Python only where Python
 must act: a configuration only pybullet can settle, a wrist-table cell never computed,
-the termination condition (every :data:`CLOCK_EVERY` iterations, and whenever the budget
-or the pause's allowance may be reached), and the end.
+the termination condition (every :data:`CLOCK_CHECKS` checks or :data:`CLOCK_ITERATIONS`
+iterations, and whenever the budget or the pause's allowance may be reached), and the end.
 
 The same numbers, not similar ones.  Each step below is OMPL's, operation for operation:
 
@@ -26,13 +26,17 @@ The same numbers, not similar ones.  Each step below is OMPL's, operation for op
   Distances are ``RealVectorStateSpace::distance``'s sum in coordinate order.  Nearest
   neighbours are found by a linear scan; OMPL's GNAT finds the same nearest state except
   between two states at exactly the same distance, which the tests have not met.
+* The shortcutting that follows (:func:`shortcut`): numpy's pairs of waypoints drawn
+  from the same 32-bit words as :class:`pipeline.planning.shortcut.Pairs`, the same edge
+  checks, the same shorter path.
 * Checks and their count (:class:`pipeline.planning.base.Budget` over the checker): the
   same rows in the same order, the same calls to pybullet (through the checker's own
   ``_ask``), the same counts.  The checker's memos of settled states and refuted edges only
   spare scans, so this loop simply scans again.
 
-The wall-clock cap is looked at every :data:`CLOCK_EVERY` iterations rather than every one
-(a call that times out is not reproducible either way).
+The wall-clock cap is looked at every :data:`CLOCK_CHECKS` checks rather than every
+iteration, so a call can overrun it by that many checks (a call that times out is not
+reproducible either way).
 """
 
 from __future__ import annotations
@@ -49,14 +53,17 @@ from pipeline.sim import collide
 #: call before the sampler, counted by matching OMPL's samples (tests/test_compiled_rrt.py)
 SAMPLER_DRAW = 6
 _NEVER = 1 << 62
-#: iterations between two looks at the termination condition (its clock)
-CLOCK_EVERY = 64
+#: checks, and iterations, after which the search looks at the termination condition
+#: again (its clock: the wall-clock cap), besides whenever the budget or the pause's
+#: allowance may be reached
+CLOCK_CHECKS = 256
+CLOCK_ITERATIONS = 1024
 
 # control words (``ctl``)
 _PC, _N, _START_TREE, _HAS_GOAL, _GT, _GSTART, _TGI_START, _NM, _REACH, _DX, _PHASE = range(11)
 _ADDED, _XMOTION, _USED, _CK, _CK_STEPS, _CK_K, _CK_M, _CK_WAIT, _ROWS, _PROVED = range(11, 21)
-_SM, _GM = 21, 22
-_CTL = 23
+_SM, _GM, _CLOCK = 21, 22, 23
+_CTL = 24
 
 # program counters
 _AT_START, _AT_ITERATION, _AT_GOAL, _AT_SAMPLE, _AT_GROW, _AT_GROW_STATE, _AT_GROW_EDGE = range(7)
@@ -284,7 +291,7 @@ def _advance(ctl, X, par, tr, rs, xs, ca, cb, mt, lower, upper, start, goal, rea
     ``ASK_*``) or it ends (``SOLVED``, ``NO_START``, ``NO_GOAL``).  ``ptc_false``: Python
     has just found the termination condition false for the iteration about to start."""
     d = lower.shape[0]
-    clock = CLOCK_EVERY
+    clock = CLOCK_ITERATIONS
     while True:
         pc = ctl[_PC]
         if pc == _AT_START:  # pis_.nextStart(): the start state, checked
@@ -301,7 +308,9 @@ def _advance(ctl, X, par, tr, rs, xs, ca, cb, mt, lower, upper, start, goal, rea
             ctl[_PC] = _AT_ITERATION
         elif pc == _AT_ITERATION:  # while (!ptc)
             if not ptc_false:
-                if ctl[_USED] >= limit or ctl[_USED] >= pause or clock == 0:
+                if (ctl[_USED] >= limit or ctl[_USED] >= pause or ctl[_USED] >= ctl[_CLOCK]
+                        or clock == 0):
+                    ctl[_CLOCK] = ctl[_USED] + CLOCK_CHECKS
                     return ASK_STOP
             ptc_false = False
             clock -= 1
@@ -438,6 +447,7 @@ class CompiledRRTConnect:
         self.rs, self.xs, self.ca, self.cb = (np.empty(d) for _ in range(4))
         self.ctl = np.zeros(_CTL, dtype=np.int64)
         self.ctl[_START_TREE] = 1
+        self.ctl[_CLOCK] = budget.used + CLOCK_CHECKS
         self.mt = np.empty(625, dtype=np.int64)
         mt_seed(sampler_seed(first_seed), self.mt)
 
