@@ -223,8 +223,11 @@ def _begin(ctl, ca, cb, kind, a, b, limit):  # pragma: no cover (compiled)
 
 @njit(cache=True)
 def _scan(kind, a, b, resolution, limit, start, geo):  # pragma: no cover (compiled)
-    return collide._scan(kind, collide._NO_FRAMES, collide._NO_PRE, a, b, resolution, limit,
-                         start, *geo)
+    """:func:`pipeline.sim.collide.edge_first`'s scan.  Its empty frames are made here, not
+    taken from the module's globals: numba would type those as read-only arrays and
+    compile the whole scan once more for them (about 17 s in a cold cache)."""
+    return collide._scan(kind, np.empty((0, 1, 3, 4)), np.zeros(0, dtype=np.bool_), a, b,
+                         resolution, limit, start, *geo)
 
 
 @njit(cache=True)
@@ -289,19 +292,26 @@ def _advance(ctl, X, par, tr, rs, xs, ca, cb, mt, lower, upper, start, goal, rea
              resolution, limit, pause, ptc_false, answer, kind, geo):  # pragma: no cover
     """Run the search from where ``ctl`` left it until Python must act (the return value:
     ``ASK_*``) or it ends (``SOLVED``, ``NO_START``, ``NO_GOAL``).  ``ptc_false``: Python
-    has just found the termination condition false for the iteration about to start."""
+    has just found the termination condition false for the iteration about to start.  A
+    check begun is run at the top of the loop, then the step that began it takes its
+    outcome."""
     d = lower.shape[0]
     clock = CLOCK_ITERATIONS
     while True:
-        pc = ctl[_PC]
-        if pc == _AT_START:  # pis_.nextStart(): the start state, checked
-            if ctl[_CK] == _NONE and not _begin(ctl, ca, cb, _STATE, start, start, limit):
-                return NO_START
+        out = -1
+        if ctl[_CK] != _NONE:
             out = _run_check(ctl, ca, cb, resolution, limit, answer, kind, geo)
+            answer = 0
             if out == _NEED_EXACT:
                 return ASK_EXACT
             if out == _NEED_CELLS:
                 return ASK_CELLS
+        pc = ctl[_PC]
+        if pc == _AT_START:  # pis_.nextStart(): the start state, checked
+            if out < 0:
+                if not _begin(ctl, ca, cb, _STATE, start, start, limit):
+                    return NO_START
+                continue
             if out == _HIT:
                 return NO_START
             _add(ctl, X, par, tr, start, -1, 0)
@@ -319,13 +329,10 @@ def _advance(ctl, X, par, tr, rs, xs, ca, cb, mt, lower, upper, start, goal, rea
             ctl[_START_TREE] = 1 - ctl[_START_TREE]
             ctl[_PC] = _AT_SAMPLE if ctl[_HAS_GOAL] else _AT_GOAL
         elif pc == _AT_GOAL:  # pis_.nextGoal(ptc): the goal state, checked
-            if ctl[_CK] == _NONE and not _begin(ctl, ca, cb, _STATE, goal, goal, limit):
-                return NO_GOAL
-            out = _run_check(ctl, ca, cb, resolution, limit, answer, kind, geo)
-            if out == _NEED_EXACT:
-                return ASK_EXACT
-            if out == _NEED_CELLS:
-                return ASK_CELLS
+            if out < 0:
+                if not _begin(ctl, ca, cb, _STATE, goal, goal, limit):
+                    return NO_GOAL
+                continue
             if out == _HIT:
                 return NO_GOAL
             _add(ctl, X, par, tr, goal, -1, 1)
@@ -337,8 +344,8 @@ def _advance(ctl, X, par, tr, rs, xs, ca, cb, mt, lower, upper, start, goal, rea
             ctl[_PHASE], ctl[_GSTART] = 1, ctl[_TGI_START]
             ctl[_PC] = _AT_GROW
         else:
+            grown = -1
             if pc == _AT_GROW:
-                grown = -1
                 nm = _nearest(X, tr, ctl[_N], ctl[_GT], rs)
                 ctl[_NM] = nm
                 dist = _distance(X[nm], rs)
@@ -355,21 +362,15 @@ def _advance(ctl, X, par, tr, rs, xs, ca, cb, mt, lower, upper, start, goal, rea
                 if grown < 0:
                     dstate = xs if ctl[_DX] else rs
                     if ctl[_GSTART]:
-                        if not _begin(ctl, ca, cb, _EDGE, X[nm], dstate, limit):
-                            grown = _TRAPPED
                         ctl[_PC] = _AT_GROW_EDGE
+                        if _begin(ctl, ca, cb, _EDGE, X[nm], dstate, limit):
+                            continue
                     else:
-                        if not _begin(ctl, ca, cb, _STATE, dstate, dstate, limit):
-                            grown = _TRAPPED
                         ctl[_PC] = _AT_GROW_STATE
-                    if grown < 0:
-                        continue
+                        if _begin(ctl, ca, cb, _STATE, dstate, dstate, limit):
+                            continue
+                    grown = _TRAPPED
             elif pc == _AT_GROW_STATE:  # isValid(dstate), then the edge back to nmotion
-                out = _run_check(ctl, ca, cb, resolution, limit, answer, kind, geo)
-                if out == _NEED_EXACT:
-                    return ASK_EXACT
-                if out == _NEED_CELLS:
-                    return ASK_CELLS
                 if out == _HIT:
                     grown = _TRAPPED
                 else:
@@ -378,18 +379,12 @@ def _advance(ctl, X, par, tr, rs, xs, ca, cb, mt, lower, upper, start, goal, rea
                     if _begin(ctl, ca, cb, _EDGE, dstate, X[ctl[_NM]], limit):
                         continue
                     grown = _TRAPPED
-            else:  # _AT_GROW_EDGE
-                out = _run_check(ctl, ca, cb, resolution, limit, answer, kind, geo)
-                if out == _NEED_EXACT:
-                    return ASK_EXACT
-                if out == _NEED_CELLS:
-                    return ASK_CELLS
-                if out == _HIT:
-                    grown = _TRAPPED
-                else:
-                    dstate = xs if ctl[_DX] else rs
-                    ctl[_XMOTION] = _add(ctl, X, par, tr, dstate, ctl[_NM], ctl[_GT])
-                    grown = _REACHED if ctl[_REACH] else _ADVANCED
+            elif out == _HIT:  # _AT_GROW_EDGE
+                grown = _TRAPPED
+            else:
+                dstate = xs if ctl[_DX] else rs
+                ctl[_XMOTION] = _add(ctl, X, par, tr, dstate, ctl[_NM], ctl[_GT])
+                grown = _REACHED if ctl[_REACH] else _ADVANCED
             # what solve() does with growTree's answer
             if ctl[_PHASE] == 1:
                 if grown == _TRAPPED:
