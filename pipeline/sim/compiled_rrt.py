@@ -224,8 +224,8 @@ def _begin(ctl, ca, cb, kind, a, b, limit):  # pragma: no cover (compiled)
 @njit(cache=True)
 def _scan(kind, a, b, resolution, limit, start, geo):  # pragma: no cover (compiled)
     """:func:`pipeline.sim.collide.edge_first`'s scan.  Its empty frames are made here, not
-    taken from the module's globals: numba would type those as read-only arrays and
-    compile the whole scan once more for them (about 17 s in a cold cache)."""
+    taken from the module's globals: numba types a global array as a read-only one, and
+    would compile the whole scan once more for it."""
     return collide._scan(kind, np.empty((0, 1, 3, 4)), np.zeros(0, dtype=np.bool_), a, b,
                          resolution, limit, start, *geo)
 
