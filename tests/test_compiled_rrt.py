@@ -151,6 +151,17 @@ def test_entries_equal_ompls(monkeypatch, domain, planner):
         assert fast["feasible"].any()
 
 
+def test_trees_that_outgrow_their_arrays(monkeypatch):
+    """Trees start with room for C.NODES states and double when full (the search pauses
+    for Python to make room, then goes on): with room for two at first, the same entries."""
+    monkeypatch.setattr(C, "NODES", 2)
+    spec, specs, seeds, theta = _replay_block("grasp_base")
+    fast, ompl = _both(monkeypatch, spec, specs, seeds, theta)
+    for k in COLUMNS:
+        np.testing.assert_array_equal(fast[k], ompl[k], err_msg=k)
+    assert fast["feasible"].any()
+
+
 def test_entries_equal_ompls_under_cached_contacts(monkeypatch):
     """Under ``domain.contacts=cached`` pybullet's answers depend on what it checked
     before: the same calls in the same order give the same entries."""

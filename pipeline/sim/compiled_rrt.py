@@ -79,7 +79,9 @@ _TRAPPED, _ADVANCED, _REACHED = 0, 1, 2
 _EQUAL = 2.0 * float(np.finfo(np.float64).eps)
 
 #: what :func:`_advance` returns
-ASK_STOP, ASK_EXACT, ASK_CELLS, SOLVED, NO_START, NO_GOAL = range(6)
+ASK_STOP, ASK_EXACT, ASK_CELLS, SOLVED, NO_START, NO_GOAL, ASK_ROOM = range(7)
+#: the trees' first capacity (doubled as they grow)
+NODES = 1024
 
 
 # -- OMPL's random numbers ------------------------------------------------------------------
@@ -346,6 +348,8 @@ def _advance(ctl, X, par, tr, rs, xs, ca, cb, mt, lower, upper, start, goal, rea
         else:
             grown = -1
             if pc == _AT_GROW:
+                if ctl[_N] == X.shape[0]:  # no room for the state it may add: Python makes some
+                    return ASK_ROOM
                 nm = _nearest(X, tr, ctl[_N], ctl[_GT], rs)
                 ctl[_NM] = nm
                 dist = _distance(X[nm], rs)
@@ -435,10 +439,11 @@ class CompiledRRTConnect:
                 extent += (hi - lo) * (hi - lo)
             reach = math.sqrt(extent) * 0.2
         self.reach = float(reach)
-        nodes = max(budget.limit - budget.used, 0) + 2  # one per counted check, the roots
-        self.X = np.empty((nodes, d))
-        self.par = np.empty(nodes, dtype=np.int64)
-        self.tr = np.empty(nodes, dtype=np.int8)
+        self.X = np.empty((NODES, d))
+        self.par = np.empty(NODES, dtype=np.int64)
+        self.tr = np.empty(NODES, dtype=np.int8)
+        #: what ended the search for good (OMPL's answer to every later ``solve``), or None
+        self._ended: int | None = None
         self.rs, self.xs, self.ca, self.cb = (np.empty(d) for _ in range(4))
         self.ctl = np.zeros(_CTL, dtype=np.int64)
         self.ctl[_START_TREE] = 1
@@ -450,6 +455,8 @@ class CompiledRRTConnect:
         """Search until a path (returned) or ``stop()`` (None); ``pause_at``: the budget's
         count at which ``stop()`` pauses the try, if it does."""
         budget, ctl = self.budget, self.ctl
+        if self._ended is not None:
+            return self._refused(stop)
         if not applies(budget.robot):
             raise RuntimeError("compiled RRT-Connect: the robot was rebound to one whose "
                                "checks are not a scanning sphere checker's")
@@ -478,12 +485,23 @@ class CompiledRRTConnect:
                 answer = int(checker._ask(self._row()))
             elif out == ASK_CELLS:
                 self._cells(table)
+            elif out == ASK_ROOM:
+                self.X = np.concatenate([self.X, np.empty_like(self.X)])
+                self.par = np.concatenate([self.par, np.empty_like(self.par)])
+                self.tr = np.concatenate([self.tr, np.empty_like(self.tr)])
             elif out == SOLVED:
                 return self._path()
-            else:  # NO_START, NO_GOAL: OMPL gives up (a refused goal: it waits for the stop)
-                if out == NO_GOAL and not stop():
-                    budget.timed_out = True
-                return None
+            else:
+                self._ended = out
+                return self._refused(stop)
+
+    def _refused(self, stop) -> None:
+        """OMPL's answer once the start or the goal state was refused (each is checked
+        once, in the first ``solve``): no path; with the goal refused it waits for the
+        termination condition, which only the wall-clock cap then makes true."""
+        if self._ended == NO_GOAL and not stop():
+            self.budget.timed_out = True
+        return None
 
     def _row(self) -> np.ndarray:
         """The configuration the check waits for, as the checker makes it."""
