@@ -309,15 +309,20 @@ def _advance(ctl, X, par, tr, rs, xs, ca, cb, mt, lower, upper, start, goal, rea
             if out == _NEED_CELLS:
                 return ASK_CELLS
         pc = ctl[_PC]
-        if pc == _AT_START:  # pis_.nextStart(): the start state, checked
+        if pc == _AT_START or pc == _AT_GOAL:
+            # pis_.nextStart() before the loop, pis_.nextGoal(ptc) in its first iteration:
+            # the state checked, then the root of its tree
+            root = 0 if pc == _AT_START else 1
+            q = start if root == 0 else goal
             if out < 0:
-                if not _begin(ctl, ca, cb, _STATE, start, start, limit):
-                    return NO_START
-                continue
+                if _begin(ctl, ca, cb, _STATE, q, q, limit):
+                    continue
+                return NO_START if root == 0 else NO_GOAL
             if out == _HIT:
-                return NO_START
-            _add(ctl, X, par, tr, start, -1, 0)
-            ctl[_PC] = _AT_ITERATION
+                return NO_START if root == 0 else NO_GOAL
+            _add(ctl, X, par, tr, q, -1, root)
+            ctl[_HAS_GOAL] = root
+            ctl[_PC] = _AT_ITERATION if root == 0 else _AT_SAMPLE
         elif pc == _AT_ITERATION:  # while (!ptc)
             if not ptc_false:
                 if (ctl[_USED] >= limit or ctl[_USED] >= pause or ctl[_USED] >= ctl[_CLOCK]
@@ -330,16 +335,6 @@ def _advance(ctl, X, par, tr, rs, xs, ca, cb, mt, lower, upper, start, goal, rea
             ctl[_TGI_START] = ctl[_START_TREE]
             ctl[_START_TREE] = 1 - ctl[_START_TREE]
             ctl[_PC] = _AT_SAMPLE if ctl[_HAS_GOAL] else _AT_GOAL
-        elif pc == _AT_GOAL:  # pis_.nextGoal(ptc): the goal state, checked
-            if out < 0:
-                if not _begin(ctl, ca, cb, _STATE, goal, goal, limit):
-                    return NO_GOAL
-                continue
-            if out == _HIT:
-                return NO_GOAL
-            _add(ctl, X, par, tr, goal, -1, 1)
-            ctl[_HAS_GOAL] = 1
-            ctl[_PC] = _AT_SAMPLE
         elif pc == _AT_SAMPLE:  # sampler_->sampleUniform(rstate), then growTree(tree)
             for i in range(d):
                 rs[i] = (upper[i] - lower[i]) * uniform01(mt) + lower[i]
