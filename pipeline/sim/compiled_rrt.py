@@ -8,17 +8,19 @@ arrays, the budget, the checker and the compiled scan; docs/results.md), not the
 Here the whole loop is one compiled function that returns to Python only where Python
 must act: a configuration only pybullet can settle, a wrist-table cell never computed,
 the termination condition (every :data:`CLOCK_CHECKS` checks or :data:`CLOCK_ITERATIONS`
-iterations, and whenever the budget or the pause's allowance may be reached), and the end.
+iterations, and whenever the budget or the pause's allowance may be reached), a tree
+outgrowing its arrays, and the end.
 
 The same numbers, not similar ones.  Each step below is OMPL's, operation for operation:
 
 * Random numbers (``ompl/util/src/RandomNumbers.cpp``).  ``RNG.setSeed(s)`` seeds the
   process's seed generator, a ``std::ranlux24_base``; every RNG object OMPL makes draws its
   own seed from it (``std::uniform_int_distribution<int>(1, 10**9)``, libstdc++'s
-  algorithm) and runs a ``std::mt19937``.  The state sampler is the :data:`SAMPLER_DRAW`-th
-  object made after the seed in a call (found by matching OMPL's samples; the tests compare
-  whole planning calls).  A uniform draw is libstdc++'s ``generate_canonical`` of two
-  32-bit outputs, scaled as ``RNG::uniformReal`` does.
+  algorithm) and runs a ``std::mt19937``.  A call makes :data:`SAMPLER_DRAW` such objects
+  after the seed before the state sampler, whose seed is therefore the next draw (found by
+  matching OMPL's samples; the tests compare whole planning calls).  A uniform draw is
+  libstdc++'s ``generate_canonical`` of two 32-bit outputs, scaled as
+  ``RNG::uniformReal`` does.
 * The search (``RRTConnect::solve`` and ``growTree``): the trees alternate, the goal tree
   gets the goal state in the first iteration, a sample is approached by at most ``range``
   (``interpolate``, ``equalStates``), a goal-tree extension checks the new state and then
@@ -49,8 +51,9 @@ from numba import njit
 
 from pipeline.sim import collide
 
-#: the seed generator's draw that seeds the state sampler: the RNG objects OMPL makes in a
-#: call before the sampler, counted by matching OMPL's samples (tests/test_compiled_rrt.py)
+#: the RNG objects OMPL makes in a call after the seed and before the state sampler (whose
+#: seed is the seed generator's next draw), counted by matching OMPL's samples
+#: (tests/test_compiled_rrt.py)
 SAMPLER_DRAW = 6
 _NEVER = 1 << 62
 #: checks, and iterations, after which the search looks at the termination condition
