@@ -415,6 +415,49 @@ def _advance(ctl, X, par, tr, rs, xs, ca, cb, mt, lower, upper, start, goal, rea
             return SOLVED
 
 
+class _Checks:
+    """The Python side of a kernel's checks on ``budget.robot``'s checker: the scan's
+    arguments, the budget's and the checker's counts kept in step with ``ctl``, and the
+    pybullet answers and wrist-table cells a kernel asks for (``ca``, ``cb``: its check's
+    end states)."""
+
+    def __init__(self, budget, ctl, ca, cb):
+        self.budget, self.ctl, self.ca, self.cb = budget, ctl, ca, cb
+        self.checker = budget.robot.checker
+        self.kind, psi, step, self.table, chain, packed, memo = self.checker.scan_args()
+        self._fixed = (psi, step, chain, packed, memo)
+
+    def run(self, kernel, *args) -> int:
+        """``kernel(*args, kind, geometry)`` with the budget's count in ``ctl``; the counts
+        it made added to the budget's and the checker's."""
+        ctl, stats = self.ctl, self.checker.stats
+        psi, step, chain, packed, memo = self._fixed
+        cells = self.table.state if self.table is not None else collide._NO_CELLS
+        rows, proved = ctl[_ROWS], ctl[_PROVED]
+        ctl[_USED] = self.budget.used
+        out = kernel(*args, self.kind,
+                     (collide.SEGMENT, psi, step, cells, *chain, *packed, *memo))
+        self.budget.used = int(ctl[_USED])
+        stats["rows"] += int(ctl[_ROWS] - rows)
+        stats["proved"] += int(ctl[_PROVED] - proved)
+        return out
+
+    def serve(self, out: int) -> int:
+        """Python's part of ``ASK_EXACT`` (pybullet's answer for the row the check waits
+        for, as the checker makes it: 1 collides) or ``ASK_CELLS`` (the cells computed;
+        0)."""
+        ctl, checker, ca, cb = self.ctl, self.checker, self.ca, self.cb
+        state = ctl[_CK] == _STATE
+        steps, k = int(ctl[_CK_STEPS]), int(ctl[_CK_K])
+        if out == ASK_EXACT:
+            return int(checker._ask(ca.copy() if state else checker.row(ca, cb, steps, k)))
+        if state:
+            self.table.uncertain(ca[None])
+        else:
+            checker.wrist_cells(ca, cb, steps, k, int(ctl[_CK_M]))
+        return 0
+
+
 class CompiledRRTConnect:
     """One planning call's search (:class:`pipeline.planning.ompl_adapter._Problem`'s
     interface: :meth:`solve` until a path or the termination condition, again after a
@@ -458,31 +501,21 @@ class CompiledRRTConnect:
         if not applies(budget.robot):
             raise RuntimeError("compiled RRT-Connect: the robot was rebound to one whose "
                                "checks are not a scanning sphere checker's")
-        checker = budget.robot.checker
+        checks = _Checks(budget, ctl, self.ca, self.cb)
         pause = _NEVER if pause_at is None else int(pause_at)
-        kind, psi, step, table, chain, packed, memo = checker.scan_args()
         ptc_false, answer = False, 0
         while True:
-            cells = table.state if table is not None else collide._NO_CELLS
-            geo = (collide.SEGMENT, psi, step, cells, *chain, *packed, *memo)
-            rows, proved = ctl[_ROWS], ctl[_PROVED]
-            ctl[_USED] = budget.used
-            out = _advance(ctl, self.X, self.par, self.tr, self.rs, self.xs, self.ca, self.cb,
-                           self.mt, self.lower, self.upper, self.start, self.goal, self.reach,
-                           self.resolution, budget.limit, pause, ptc_false, answer,
-                           kind, geo)
-            budget.used = int(ctl[_USED])
-            checker.stats["rows"] += int(ctl[_ROWS] - rows)
-            checker.stats["proved"] += int(ctl[_PROVED] - proved)
+            out = checks.run(_advance, ctl, self.X, self.par, self.tr, self.rs, self.xs,
+                             self.ca, self.cb, self.mt, self.lower, self.upper, self.start,
+                             self.goal, self.reach, self.resolution, budget.limit, pause,
+                             ptc_false, answer)
             ptc_false, answer = False, 0
             if out == ASK_STOP:
                 if stop():
                     return None
                 ptc_false = True
-            elif out == ASK_EXACT:
-                answer = int(checker._ask(self._row()))
-            elif out == ASK_CELLS:
-                self._cells(table)
+            elif out == ASK_EXACT or out == ASK_CELLS:
+                answer = checks.serve(out)
             elif out == ASK_ROOM:
                 self.X = np.concatenate([self.X, np.empty_like(self.X)])
                 self.par = np.concatenate([self.par, np.empty_like(self.par)])
@@ -500,22 +533,6 @@ class CompiledRRTConnect:
         if self._ended == NO_GOAL and not stop():
             self.budget.timed_out = True
         return None
-
-    def _row(self) -> np.ndarray:
-        """The configuration the check waits for, as the checker makes it."""
-        ctl = self.ctl
-        if ctl[_CK] == _STATE:
-            return self.ca.copy()
-        return self.budget.robot.checker.row(self.ca, self.cb, int(ctl[_CK_STEPS]),
-                                             int(ctl[_CK_K]))
-
-    def _cells(self, table) -> None:
-        ctl = self.ctl
-        if ctl[_CK] == _STATE:
-            table.uncertain(self.ca[None])
-            return
-        self.budget.robot.checker.wrist_cells(self.ca, self.cb, int(ctl[_CK_STEPS]),
-                                              int(ctl[_CK_K]), int(ctl[_CK_M]))
 
     def _path(self) -> np.ndarray:
         """Start root … ``_SM``, then ``_GM`` … goal root (RRTConnect's solution path)."""
@@ -601,33 +618,20 @@ def shortcut(path: np.ndarray, budget, pairs, resolution: float, attempts: int) 
     """:func:`pipeline.planning.shortcut.shortcut` compiled with the checker's scan: the same
     pairs (``pairs``' words: numpy's draws), checks and path; ``pairs`` is left as after
     those draws (its ``used``)."""
-    checker = budget.robot.checker
-    kind, psi, step, table, chain, packed, memo = checker.scan_args()
     path = np.array(path, dtype=float)
     ctl = np.zeros(_CTL, dtype=np.int64)
     ctl[_N], ctl[_ADDED] = len(path), pairs.used
     ca, cb = np.empty(path.shape[1]), np.empty(path.shape[1])
+    checks = _Checks(budget, ctl, ca, cb)
     resolution, answer = float(resolution), 0
     while True:
-        words = np.array(pairs.words, dtype=np.int64)
-        cells = table.state if table is not None else collide._NO_CELLS
-        geo = (collide.SEGMENT, psi, step, cells, *chain, *packed, *memo)
-        rows, proved = ctl[_ROWS], ctl[_PROVED]
-        ctl[_USED] = budget.used
-        out = _shortcut(ctl, path, words, ca, cb, resolution, budget.limit, attempts, answer,
-                        kind, geo)
-        budget.used = int(ctl[_USED])
-        checker.stats["rows"] += int(ctl[_ROWS] - rows)
-        checker.stats["proved"] += int(ctl[_PROVED] - proved)
+        out = checks.run(_shortcut, ctl, path, np.array(pairs.words, dtype=np.int64), ca, cb,
+                         resolution, budget.limit, attempts, answer)
         answer = 0
         if out == ASK_STOP:
             pairs.more()
-        elif out == ASK_EXACT:
-            answer = int(checker._ask(checker.row(ca, cb, int(ctl[_CK_STEPS]),
-                                                  int(ctl[_CK_K]))))
-        elif out == ASK_CELLS:
-            checker.wrist_cells(ca, cb, int(ctl[_CK_STEPS]), int(ctl[_CK_K]),
-                                int(ctl[_CK_M]))
+        elif out == ASK_EXACT or out == ASK_CELLS:
+            answer = checks.serve(out)
         else:
             pairs.used = int(ctl[_ADDED])
             return path[: ctl[_N]]
