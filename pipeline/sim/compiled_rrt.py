@@ -68,6 +68,9 @@ _ADDED, _XMOTION, _USED, _CK, _CK_STEPS, _CK_K, _CK_M, _CK_WAIT, _ROWS, _PROVED 
 _SM, _GM, _CLOCK = 21, 22, 23
 _CTL = 24
 
+# the shortcutting's own words of ``ctl``: the attempt, the next random word, the pair
+_ATTEMPT, _WORD, _I, _J = _PC, _ADDED, _NM, _XMOTION
+
 # program counters
 _AT_START, _AT_ITERATION, _AT_GOAL, _AT_SAMPLE, _AT_GROW, _AT_GROW_STATE, _AT_GROW_EDGE = range(7)
 # check kinds and what a check waits for
@@ -82,7 +85,7 @@ _TRAPPED, _ADVANCED, _REACHED = 0, 1, 2
 _EQUAL = 2.0 * float(np.finfo(np.float64).eps)
 
 #: what :func:`_advance` returns
-ASK_STOP, ASK_EXACT, ASK_CELLS, SOLVED, NO_START, NO_GOAL, ASK_ROOM = range(7)
+ASK_STOP, ASK_EXACT, ASK_CELLS, SOLVED, NO_START, NO_GOAL, ASK_ROOM, ASK_WORDS = range(8)
 #: the trees' first capacity (doubled as they grow)
 NODES = 1024
 
@@ -576,9 +579,9 @@ def _bounded(words, pos, r):  # pragma: no cover (compiled)
 def _shortcut(ctl, path, words, ca, cb, resolution, limit, attempts, answer, kind,
               geo):  # pragma: no cover (compiled)
     """:func:`pipeline.planning.shortcut.shortcut` from where ``ctl`` left it: the path's
-    first ``ctl[_N]`` rows (shortened in place), attempt ``ctl[_PC]``, word ``ctl[_ADDED]``
-    next.  Returns SOLVED at the end, ASK_EXACT / ASK_CELLS for an edge check, ASK_STOP
-    when the words ran out (Python adds more; the draw starts again)."""
+    first ``ctl[_N]`` rows (shortened in place), attempt ``ctl[_ATTEMPT]``, word
+    ``ctl[_WORD]`` next.  Returns SOLVED at the end, ASK_EXACT / ASK_CELLS for an edge
+    check, ASK_WORDS when the words ran out (Python adds more; the draw starts again)."""
     while True:
         if ctl[_CK] != _NONE:  # an edge check under way
             out = _run_check(ctl, ca, cb, resolution, limit, answer, kind, geo)
@@ -587,13 +590,13 @@ def _shortcut(ctl, path, words, ca, cb, resolution, limit, attempts, answer, kin
             if out == _NEED_CELLS:
                 return ASK_CELLS
             if out == _FREE:  # path[:i + 1] + path[j:]
-                i, j, n = ctl[_NM], ctl[_XMOTION], ctl[_N]
+                i, j, n = ctl[_I], ctl[_J], ctl[_N]
                 for r in range(j, n):
                     path[i + 1 + r - j, :] = path[r]
                 ctl[_N] = n - (j - i - 1)
-        if ctl[_PC] >= attempts or ctl[_N] < 3 or ctl[_USED] >= limit:
+        if ctl[_ATTEMPT] >= attempts or ctl[_N] < 3 or ctl[_USED] >= limit:
             return SOLVED
-        n, pos = ctl[_N], ctl[_ADDED]
+        n, pos = ctl[_N], ctl[_WORD]
         v1 = 0
         if n > 2:
             v1, pos = _bounded(words, pos, n - 2)
@@ -601,16 +604,16 @@ def _shortcut(ctl, path, words, ca, cb, resolution, limit, attempts, answer, kin
         if v1 >= 0:
             v2, pos = _bounded(words, pos, n - 1)
         if v2 < 0 or pos >= words.shape[0]:
-            return ASK_STOP
+            return ASK_WORDS
         pos += 1  # the shuffle of the pair
         if v2 == v1:
             v2 = n - 1
         i, j = min(v1, v2), max(v1, v2)
-        ctl[_PC] += 1
-        ctl[_ADDED] = pos
+        ctl[_ATTEMPT] += 1
+        ctl[_WORD] = pos
         if j - i < 2:
             continue
-        ctl[_NM], ctl[_XMOTION] = i, j
+        ctl[_I], ctl[_J] = i, j
         _begin(ctl, ca, cb, _EDGE, path[i], path[j], limit)
 
 
@@ -620,7 +623,7 @@ def shortcut(path: np.ndarray, budget, pairs, resolution: float, attempts: int) 
     those draws (its ``used``)."""
     path = np.array(path, dtype=float)
     ctl = np.zeros(_CTL, dtype=np.int64)
-    ctl[_N], ctl[_ADDED] = len(path), pairs.used
+    ctl[_N], ctl[_WORD] = len(path), pairs.used
     ca, cb = np.empty(path.shape[1]), np.empty(path.shape[1])
     checks = _Checks(budget, ctl, ca, cb)
     resolution, answer = float(resolution), 0
@@ -628,12 +631,12 @@ def shortcut(path: np.ndarray, budget, pairs, resolution: float, attempts: int) 
         out = checks.run(_shortcut, ctl, path, np.array(pairs.words, dtype=np.int64), ca, cb,
                          resolution, budget.limit, attempts, answer)
         answer = 0
-        if out == ASK_STOP:
+        if out == ASK_WORDS:
             pairs.more()
         elif out == ASK_EXACT or out == ASK_CELLS:
             answer = checks.serve(out)
         else:
-            pairs.used = int(ctl[_ADDED])
+            pairs.used = int(ctl[_WORD])
             return path[: ctl[_N]]
 
 
