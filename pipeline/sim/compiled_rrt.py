@@ -209,9 +209,18 @@ def _nearest(X, tr, n, tree, q):  # pragma: no cover (compiled)
 
 
 @njit(cache=True)
+def _put(dst, src):  # pragma: no cover (compiled)
+    """``dst[:] = src`` for two 1-d arrays of one length, as a loop: numba's slice
+    assignment compiles the formatting of its shape-mismatch error, seconds of a cold
+    compile."""
+    for i in range(src.shape[0]):
+        dst[i] = src[i]
+
+
+@njit(cache=True)
 def _add(ctl, X, par, tr, q, parent, tree):  # pragma: no cover (compiled)
     n = ctl[_N]
-    X[n, :] = q
+    _put(X[n], q)
     par[n], tr[n] = parent, tree
     ctl[_N] = n + 1
     return n
@@ -223,22 +232,27 @@ def _begin(ctl, ca, cb, kind, a, b, limit):  # pragma: no cover (compiled)
     False: the budget is spent, the check refused uncounted."""
     if ctl[_USED] >= limit:
         return False
-    ca[:] = a
-    cb[:] = b
+    _put(ca, a)
+    _put(cb, b)
     ctl[_CK], ctl[_CK_WAIT], ctl[_CK_K] = kind, 0, 0
     return True
 
 
-@njit(cache=True)
+# _scan and _run_check are inlined into their callers (numba's IR inlining): a compiled
+# function that calls another links the callee's code into its own and optimises it all
+# again, so each extra layer above collide._scan cost seconds of a cold compile
+@njit(cache=True, inline="always")
 def _scan(kind, a, b, resolution, limit, start, geo):  # pragma: no cover (compiled)
     """:func:`pipeline.sim.collide.edge_first`'s scan.  Its empty frames are made here, not
     taken from the module's globals: numba types a global array as a read-only one, and
-    would compile the whole scan once more for it."""
+    would compile the whole scan once more for it.  Callers pass ``limit`` and ``start``
+    as int64 variables, never as integer constants: numba types a constant argument as a
+    literal and compiles this function (and links the scan into it) once per literal."""
     return collide._scan(kind, np.empty((0, 1, 3, 4)), np.zeros(0, dtype=np.bool_), a, b,
                          resolution, limit, start, *geo)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _run_check(ctl, ca, cb, resolution, limit, answer, kind, geo):  # pragma: no cover
     """Go on with the check begun by :func:`_begin` (``answer``: pybullet's, 1 collides,
     for the row it waits for): _FREE, _HIT, or what it needs from Python (the row's or the
@@ -249,7 +263,7 @@ def _run_check(ctl, ca, cb, resolution, limit, answer, kind, geo):  # pragma: no
         if wait == _WAIT_EXACT:
             hit = answer != 0
         else:
-            _, k, proved = _scan(kind, ca, ca, 1.0, 1, 0, geo)
+            _, k, proved = _scan(kind, ca, ca, 1.0, np.int64(1), np.int64(0), geo)
             if k < 0:
                 ctl[_CK_WAIT] = _WAIT_CELLS
                 return _NEED_CELLS
@@ -271,11 +285,13 @@ def _run_check(ctl, ca, cb, resolution, limit, answer, kind, geo):  # pragma: no
             ctl[_CK] = _NONE
             ctl[_USED] += k + 1
             return _HIT
-        steps, k, proved = _scan(kind, ca, cb, resolution, rows, k + 1, geo)
+        start = k + 1
     elif wait == _WAIT_CELLS:
-        steps, k, proved = _scan(kind, ca, cb, resolution, rows, k, geo)
+        start = k
     else:
-        steps, k, proved = _scan(kind, ca, cb, resolution, rows, 0, geo)
+        start = 0
+    steps, k, proved = _scan(kind, ca, cb, resolution, rows, start, geo)
+    if wait == 0:  # the motion's first scan: its rows count once
         ctl[_ROWS] += min(steps, rows)
     m = min(steps, rows)
     ctl[_CK_STEPS], ctl[_CK_M] = steps, m
@@ -397,7 +413,7 @@ def _advance(ctl, X, par, tr, rs, xs, ca, cb, mt, lower, upper, start, goal, rea
                     continue
                 ctl[_ADDED] = ctl[_XMOTION]
                 if grown != _REACHED:
-                    rs[:] = xs
+                    _put(rs, xs)
                 ctl[_TGI_START] = ctl[_START_TREE]
                 ctl[_GT] = 0 if ctl[_START_TREE] else 1
                 ctl[_GSTART], ctl[_PHASE], ctl[_PC] = ctl[_TGI_START], 2, _AT_GROW
@@ -592,7 +608,7 @@ def _shortcut(ctl, path, words, ca, cb, resolution, limit, attempts, answer, kin
             if out == _FREE:  # path[:i + 1] + path[j:]
                 i, j, n = ctl[_I], ctl[_J], ctl[_N]
                 for r in range(j, n):
-                    path[i + 1 + r - j, :] = path[r]
+                    _put(path[i + 1 + r - j], path[r])
                 ctl[_N] = n - (j - i - 1)
         if ctl[_ATTEMPT] >= attempts or ctl[_N] < 3 or ctl[_USED] >= limit:
             return SOLVED
