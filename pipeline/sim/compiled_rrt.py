@@ -51,6 +51,12 @@ from numba import njit
 
 from pipeline.sim import collide
 
+#: the first 16 hex digits of the SHA-256 of each module file in pipeline/sim whose compiled
+#: functions the kernels here call: numba links them into this module's cached code but
+#: checks only this file's stamp when it loads that cache, so a change to one of them must
+#: change this file too (tests/test_kernel_cache.py checks these digests)
+LINKED = {"collide.py": "5388238a9e82e474"}
+
 #: the RNG objects OMPL makes in a call after the seed and before the state sampler (whose
 #: seed is the seed generator's next draw), counted by matching OMPL's samples
 #: (tests/test_compiled_rrt.py)

@@ -35,6 +35,12 @@ from numba import njit
 
 from pipeline.sim import collide, fast_check, spheres
 
+#: the first 16 hex digits of the SHA-256 of each module file in pipeline/sim whose compiled
+#: functions the kernels here call: numba links them into this module's cached code but
+#: checks only this file's stamp when it loads that cache, so a change to one of them must
+#: change this file too (tests/test_kernel_cache.py checks these digests)
+LINKED = {"collide.py": "5388238a9e82e474"}
+
 #: how far beyond the query distance (metres) a body's lower bound must be for the body to
 #: be left out: far above pybullet's collision margin (its distances are up to 0.9 mm below
 #: the hulls'; the spheres carry it already, the hulls' separations do not) and the
