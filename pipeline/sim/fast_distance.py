@@ -35,10 +35,8 @@ from numba import njit
 
 from pipeline.sim import collide, fast_check, spheres
 
-#: the first 16 hex digits of the SHA-256 of each module file in pipeline/sim whose compiled
-#: functions the kernels here call: numba links them into this module's cached code but
-#: checks only this file's stamp when it loads that cache, so a change to one of them must
-#: change this file too (tests/test_kernel_cache.py checks these digests)
+#: the digests of the files whose compiled functions the kernel here calls, as
+#: :data:`pipeline.sim.compiled_rrt.LINKED` (why: tests/test_kernel_cache.py)
 LINKED = {"collide.py": "5388238a9e82e474"}
 
 #: how far beyond the query distance (metres) a body's lower bound must be for the body to
