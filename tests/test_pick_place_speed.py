@@ -582,3 +582,93 @@ def test_base_poses_settled_on_the_base_planners_model_are_pybullets():
     finally:
         fast.close()
         exact.close()
+
+
+# -- pick IK kept per grasp ------------------------------------------------------------------
+
+def test_solve_ik_runs_every_start_in_turn_and_says_when_it_drew_one():
+    """solve_ik's damped IK (home, then the random starts) answers as Panda.ik over all of
+    ik_starts; ``seeded`` is True exactly where the start from home gave no solution the
+    check accepts.  The check here refuses a shoulder turned left, so both occur."""
+    from pipeline.domains.ik import solve_ik
+
+    client = connect()
+    try:
+        arm = P.Panda(client, (0.0, 0.0, 0.0))
+        rng = np.random.default_rng(5)
+        seeded = []
+        for k in range(60):
+            pos, orn = arm.tcp_pose(rng.uniform(P.LOWER, P.UPPER))
+            if np.linalg.norm(pos - arm.shoulder) > P.REACH:
+                continue  # refused before any IK run (tests/test_wrist_reach.py)
+            for seed in ([k, 7], [k, 8]):
+                def refused(q):
+                    return q[0] > 0.3
+                out = solve_ik(arm, pos, orn, seed, 4, "damped", refused)
+                q, checks, reached = arm.ik(pos, orn, P.ik_starts(seed, 4), collides=refused)
+                assert (out.q is None) == (q is None) and out.checks == checks
+                assert out.q is None or out.q.tobytes() == q.tobytes()
+                assert out.found or out.status.name == ("GOAL_IN_COLLISION" if reached
+                                                        else "NO_IK")
+                home, _, _ = arm.ik(pos, orn, [P.HOME], collides=refused)
+                assert out.seeded == (home is None)
+                seeded.append(out.seeded)
+        assert any(seeded) and not all(seeded)
+    finally:
+        pb.disconnect(client)
+
+
+def _pick_outcomes(domain, instances, grasps, seeds, forget=None):
+    """Pick IK outcomes (solution bytes, checks, status) of ``domain`` for every instance ×
+    grasp × seed, the scene reset before each as the pick step does; ``forget``: an
+    instance loaded between two calls, so that nothing kept survives."""
+    out = []
+    for spec in instances:
+        inst = domain.check_instance(spec)
+        for g in grasps:
+            for seed in seeds:
+                if forget is not None:
+                    domain.scene(domain.check_instance(forget))
+                domain.scene(inst)
+                domain.reset(inst)
+                ik = domain.pick_ik(inst, g, seed)
+                out.append((None if ik.q is None else ik.q.tobytes(), ik.checks, ik.status))
+    return out
+
+
+def _ik_runs(domain) -> list:
+    """A list that gets one item per IK run of ``domain``'s robot (made with its scene)."""
+    robot, runs = domain.robot, []
+    method = robot.ik
+    robot.ik = lambda *a, **k: runs.append(1) or method(*a, **k)
+    return runs
+
+
+@pytest.mark.parametrize("contacts", ["fresh", "cached"])
+def test_pick_ik_outcomes_kept_per_grasp_are_the_ones_computed_afresh(contacts):
+    """Every constraint of an instance with the same grasp asks the same pick IK; under
+    fresh contacts its outcome is kept while the scene stays, and each kept outcome equals
+    the one a domain computes afresh (another instance loaded before each call) for
+    another seed, with fewer IK runs; under cached contacts nothing is kept (as many IK
+    runs as afresh)."""
+    store = _store()
+    instances, seeds = store["instances"][:2], [3, 11, 12]
+    made = [load_domain("pick_place", planner={"name": "rrt_connect"}, contacts=contacts)
+            for _ in range(2)]
+    try:
+        for domain in made:
+            domain.scene(domain.check_instance(instances[0]))
+        keeping, afresh = made
+        grasps = keeping.grasps[::7]
+        runs, afresh_runs = _ik_runs(keeping), _ik_runs(afresh)
+        kept = _pick_outcomes(keeping, instances, grasps, seeds)
+        assert kept == _pick_outcomes(afresh, instances, grasps, seeds,
+                                      forget=store["instances"][2])
+        assert sum(1 for q, _, _ in kept if q is not None) >= 3 * len(seeds)
+        if contacts == "fresh":
+            assert len(runs) < len(afresh_runs)
+        else:
+            assert len(runs) == len(afresh_runs)
+    finally:
+        for domain in made:
+            domain.close()

@@ -144,4 +144,6 @@ def test_the_ik_step_answers_refused_poses_without_running_ik(client):
     _, tcp, R = wrist_and_tcp(arm)
     for method in ("damped", "analytic"):  # reached (the module's other arms may be in the way)
         assert solve_ik(arm, tcp, quat(R), [0, 7], 4, method).status is not Status.NO_IK
-    assert runs == ["ik", "analytic_ik"]
+    # damped IK runs from home, then (when home gave nothing the check accepts) once more
+    # over the random starts; analytic IK once
+    assert runs in (["ik", "analytic_ik"], ["ik", "ik", "analytic_ik"])

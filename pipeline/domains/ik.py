@@ -10,7 +10,7 @@ import numpy as np
 
 from pipeline.domains.schemas import IK_METHODS
 from pipeline.planning import Status
-from pipeline.sim.panda import REACH, ik_starts, wrist_out_of_reach
+from pipeline.sim.panda import REACH, ik_starts, random_starts, wrist_out_of_reach
 
 
 @dataclass(frozen=True)
@@ -18,6 +18,9 @@ class IKOutcome:
     q: np.ndarray | None  # a collision-free solution, or None
     checks: int  # collision checks of candidate solutions
     status: Status  # OK, NO_IK (none reached the pose) or GOAL_IN_COLLISION (all collided)
+    #: a random start was drawn: another seed may give another outcome (else the outcome
+    #: is a function of the pose, the scene and the check)
+    seeded: bool = False
 
     @property
     def found(self) -> bool:
@@ -45,23 +48,31 @@ def solve_ik(arm, position, orientation, rng_seed, restarts: int,
     within IK's tolerances (:func:`pipeline.sim.panda.wrist_out_of_reach`: the outcome
     every IK would end with, found without running it).  Otherwise NO_IK when no restart
     reached the pose, GOAL_IN_COLLISION when every one that did collides.  ``collides(q)``:
-    the collision check of a solution (None: the arm's own, pybullet's).
+    the collision check of a solution (None: the arm's own, pybullet's).  The outcome says
+    whether a random start was drawn (``seeded``).
     """
     if np.linalg.norm(np.asarray(position) - arm.shoulder) > REACH:
         return IKOutcome(None, 0, Status.NO_IK)
     if wrist_out_of_reach(arm.joint2, position, orientation):
         return IKOutcome(None, 0, Status.NO_IK)
-    if method == "damped":
-        q, checks, reached = arm.ik(position, orientation, ik_starts(rng_seed, restarts),
+    seeded = False
+    if method == "damped":  # Panda.ik's loop over ik_starts, in two parts: home, the others
+        q, checks, reached = arm.ik(position, orientation, ik_starts(rng_seed, min(restarts, 1)),
                                     collides=collides)
+        if q is None and restarts > 1:
+            seeded = True
+            q, more, again = arm.ik(position, orientation, random_starts(rng_seed, restarts - 1),
+                                    collides=collides)
+            checks, reached = checks + more, reached or again
     elif method == "analytic":
         q, checks, reached = arm.analytic_ik(position, orientation, restarts,
                                              collides=collides)
     else:
         raise ValueError(f"IK method must be one of {', '.join(METHODS)}, got {method!r}")
     if q is not None:
-        return IKOutcome(q, checks, Status.OK)
-    return IKOutcome(None, checks, Status.GOAL_IN_COLLISION if reached else Status.NO_IK)
+        return IKOutcome(q, checks, Status.OK, seeded)
+    return IKOutcome(None, checks, Status.GOAL_IN_COLLISION if reached else Status.NO_IK,
+                     seeded)
 
 
 def settles_by_spheres(planner, fresh_contacts: bool) -> bool:

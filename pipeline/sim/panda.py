@@ -276,15 +276,21 @@ def _on_mount(pt) -> bool:
 
 
 def ik_starts(rng_seed, restarts: int):
-    """The starts of IK's restarts: home, then configurations drawn uniformly within the
-    limits from ``numpy.random.default_rng(rng_seed)``, made at the first draw (making a
-    Generator costs more than many IK calls that succeed from home)."""
+    """The starts of IK's restarts: home, then :func:`random_starts` (``restarts - 1`` of
+    them)."""
     if restarts < 1:
         return
     yield HOME
-    if restarts > 1:
+    yield from random_starts(rng_seed, restarts - 1)
+
+
+def random_starts(rng_seed, count: int):
+    """``count`` configurations drawn uniformly within the limits from
+    ``numpy.random.default_rng(rng_seed)``, made at the first draw (making a Generator costs
+    more than many IK calls that succeed from home)."""
+    if count > 0:
         rng = np.random.default_rng(rng_seed)
-        for _ in range(restarts - 1):
+        for _ in range(count):
             yield rng.uniform(LOWER, UPPER)
 
 
