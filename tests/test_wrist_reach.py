@@ -147,3 +147,14 @@ def test_the_ik_step_answers_refused_poses_without_running_ik(client):
     # damped IK runs from home, then (when home gave nothing the check accepts) once more
     # over the random starts; analytic IK once
     assert runs in (["ik", "analytic_ik"], ["ik", "ik", "analytic_ik"])
+
+
+def test_reach_is_the_domains_rule_not_a_bound_of_the_arm(client):
+    """docs/domains.md: REACH refuses some poses an IK would reach; the TCP of about a fifth
+    of the configurations within the limits lies beyond it, none beyond 0.95 m."""
+    rng = np.random.default_rng(0)
+    arm = P.Panda(client, (0.0, 0.0, 0.0))
+    far = np.array([np.linalg.norm(arm.tcp_pose(rng.uniform(P.LOWER, P.UPPER))[0]
+                                   - arm.shoulder) for _ in range(2000)])
+    assert 0.15 < (far > P.REACH).mean() < 0.25
+    assert P.REACH < far.max() < 0.95
