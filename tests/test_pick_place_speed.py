@@ -1,8 +1,8 @@
 """The faster pick_place (issue 27, item 1) answers as ``planner.collision=exact`` does:
 whole entries planned block by block, edges and single configurations checked by the
 compiled scan, the geometric refinements it trusts (convex hulls, box faces), the memos of
-worlds and robots, and the shortcutter's random pairs.  Behaviour only; the timings are
-``benchmarks/bench_pick_place.py``'s."""
+worlds and robots, the shortcutter's random pairs, and the pick IK outcomes kept per grasp.
+Behaviour only; the timings are ``benchmarks/bench_pick_place.py``'s."""
 
 from __future__ import annotations
 
