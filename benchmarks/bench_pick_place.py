@@ -123,6 +123,22 @@ def entries(raw: int, instances: int, constraints: int, seed: int) -> dict:
             "warm_seeds": np.arange(first - 2, first)}
 
 
+#: what an --entries file holds (:func:`entries`)
+ENTRY_KEYS = {"theta", "specs", "seeds", "warm_specs", "warm_seeds"}
+
+
+def entries_problem(path: Path) -> str:
+    """Why ``path`` cannot be read or written as an --entries file ("" when it can)."""
+    if not path.exists():
+        return "" if path.parent.is_dir() else f"no folder {path.parent} to write it in"
+    try:
+        with np.load(path) as saved:
+            missing = ENTRY_KEYS - set(saved.files)
+    except (OSError, ValueError) as exc:
+        return f"not an .npz this benchmark wrote ({exc})"
+    return f"not an .npz this benchmark wrote (no {', '.join(sorted(missing))})" if missing else ""
+
+
 def run(variant: str, root: Path, collision: str, data: Path, out: Path,
         profile: bool, contacts: str | None = None) -> dict:
     job = {"data": str(data), "out": str(out), "collision": collision, "profile": profile,
@@ -149,6 +165,11 @@ def main() -> None:
     if args.child:
         child(json.loads(args.child))
         return
+    if args.entries is not None:
+        problem = entries_problem(args.entries)
+        if problem:
+            print(f"bench_pick_place: --entries {args.entries}: {problem}", file=sys.stderr)
+            sys.exit(2)
     with tempfile.TemporaryDirectory(prefix="bench_pick_place_") as tmp:
         tmp = Path(tmp)
         data = tmp / "entries.npz"

@@ -672,3 +672,22 @@ def test_pick_ik_outcomes_kept_per_grasp_are_the_ones_computed_afresh(contacts):
     finally:
         for domain in made:
             domain.close()
+
+
+@pytest.mark.parametrize("content", [b"not an npz", None])
+def test_the_benchmark_refuses_an_entries_file_it_cannot_use_in_one_line(tmp_path, content):
+    """``bench_pick_place.py --entries``: a file that is not one it wrote, or a folder that
+    does not exist, is refused with one line and exit code 2, the file left as it was."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    path = tmp_path / "e.npz" if content is not None else tmp_path / "no" / "e.npz"
+    if content is not None:
+        path.write_bytes(content)
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_pick_place.py"
+    done = subprocess.run([sys.executable, str(script), "--entries", str(path)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and done.stdout == ""
+    assert len(done.stderr.strip().splitlines()) == 1 and str(path) in done.stderr
+    assert content is None or path.read_bytes() == content
