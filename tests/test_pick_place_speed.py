@@ -597,13 +597,14 @@ def test_solve_ik_runs_every_start_in_turn_and_says_when_it_drew_one():
         arm = P.Panda(client, (0.0, 0.0, 0.0))
         rng = np.random.default_rng(5)
         seeded = []
+
+        def refused(q):
+            return q[0] > 0.3
         for k in range(60):
             pos, orn = arm.tcp_pose(rng.uniform(P.LOWER, P.UPPER))
             if np.linalg.norm(pos - arm.shoulder) > P.REACH:
                 continue  # refused before any IK run (tests/test_wrist_reach.py)
             for seed in ([k, 7], [k, 8]):
-                def refused(q):
-                    return q[0] > 0.3
                 out = solve_ik(arm, pos, orn, seed, 4, "damped", refused)
                 q, checks, reached = arm.ik(pos, orn, P.ik_starts(seed, 4), collides=refused)
                 assert (out.q is None) == (q is None) and out.checks == checks

@@ -47,6 +47,12 @@ from pipeline.sim import panda as P
 from pipeline.sim.mobile import MobileArm, MobileBase, base_transform
 from pipeline.sim.world import pose_matrix, quaternion
 
+
+def _own_copy(ik: IKOutcome) -> IKOutcome:
+    """``ik`` with its own copy of the solution (a kept outcome is never handed out)."""
+    return ik if ik.q is None else replace(ik, q=ik.q.copy())
+
+
 #: The instance features (PickPlaceDomain._instance_features): the rod, what is near it on
 #: the start table, and how crowded the goal table is (gaps between box surfaces).
 INSTANCE_FEATURES = (
@@ -216,14 +222,14 @@ class PickPlaceDomain(Domain):
         kept = self._kept_picks()
         known = None if kept is None else kept.get(g)
         if known is not None:
-            return replace(known, q=None if known.q is None else known.q.copy())
+            return _own_copy(known)
         grasp = pose_matrix(start_rod(inst.rod_length).position, np.eye(3)) @ g.rod_tcp(
             inst.rod_length)
         pre = grasp[:3, 3] - grasp[:3, 2] * self.config.pregrasp_offset
         ik = solve_ik(self.robot, pre, quaternion(grasp[:3, :3]),
                       [seed, 17], self.config.ik_restarts, self.config.ik, self.ik_collides())
         if kept is not None and not ik.seeded:
-            kept[g] = replace(ik, q=None if ik.q is None else ik.q.copy())
+            kept[g] = _own_copy(ik)
         return ik
 
     def _kept_picks(self) -> dict[RodGrasp, IKOutcome] | None:
