@@ -15,8 +15,10 @@ generator each time it is called, so every call seeds it from the call's own see
 builds a fresh space, setup and planner: the sampler, the nearest-neighbour structure and
 the planner receive the same seeds whatever ran before in the process.  Everything else
 that is random here (shortcutting) draws from a numpy Generator seeded per call.  OMPL's
-log is silenced during a call (re-seeding logs an error by design) and restored after it,
-so importing or calling this module changes no global setting.  A call may also run as a
+log is silenced while OMPL's objects are made and search (re-seeding logs an error by
+design) and restored after, so importing or calling this module changes no global
+setting; a compiled search (the robot's own, :mod:`pipeline.planning.rrt_connect`) never
+touches OMPL's log.  A call may also run as a
 try that pauses and resumes on the same planner object (:class:`OmplSearch`,
 :data:`RESUMABLE`; seeded once, when its problem is made).  Planners that plan in a
 second thread (PRM's roadmap) see a budget in an order no seed fixes, so they are refused
@@ -243,17 +245,16 @@ class OmplSearch(PlanningTry):
     def _advance(self, allowance, now) -> PlanResult | None:
         budget = self.budget
         budget.deadline += now - self._idle_since  # the cap counts time inside slices
-        with quiet_ompl():
-            if self._problem is None:  # the first slice: end points, then OMPL's problem
-                ended = self._endpoints()
-                if ended is not None:
-                    return ended
-                if np.array_equal(self.start, self.goal):
-                    return self._found(self.start[None])
-                self._problem = self.planner.problem(self.lower, self.upper, self.start,
-                                                     self.goal, budget, self.seed)
-            path = self._problem.solve(self._stop(allowance),
-                                       None if allowance is None else self.used0 + allowance)
+        if self._problem is None:  # the first slice: end points, then the search's problem
+            ended = self._endpoints()
+            if ended is not None:
+                return ended
+            if np.array_equal(self.start, self.goal):
+                return self._found(self.start[None])
+            self._problem = self.planner.problem(self.lower, self.upper, self.start,
+                                                 self.goal, budget, self.seed)
+        path = self._problem.solve(self._stop(allowance),
+                                   None if allowance is None else self.used0 + allowance)
         if path is None and not (budget.spent or budget.timed_out) and self._paused:
             self._problem.forget_approximations()
             self._idle_since = time.perf_counter()
@@ -264,7 +265,8 @@ class OmplSearch(PlanningTry):
             return self._failed(status)
         path = shortcut(path, budget, np.random.default_rng([self.seed, 1]),
                         self.planner.settings.resolution,
-                        self.planner.settings.shortcut_attempts, self.planner.compiled)
+                        self.planner.settings.shortcut_attempts, self.planner.compiled,
+                        rng_kept=False)
         return self._found(path)
 
     def _stop(self, allowance):
@@ -289,8 +291,7 @@ class OmplSearch(PlanningTry):
         budget = self.budget
         for q, status in ((self.start, Status.START_IN_COLLISION),
                           (self.goal, Status.GOAL_IN_COLLISION)):
-            if (np.any(q < self.lower) or np.any(q > self.upper)
-                    or not budget.states_free(q[None])):
+            if ((q < self.lower) | (q > self.upper)).any() or not budget.states_free(q[None]):
                 if budget.spent:  # an earlier leg used the whole budget: q was never checked
                     status = Status.BUDGET_EXHAUSTED
                 return self._failed(status)
@@ -313,6 +314,10 @@ class _Problem:
 
     def __init__(self, planner: OmplGeometric, lower, upper, start, goal, budget: Budget,
                  seed: int):
+        with quiet_ompl():  # re-seeding logs an error by design
+            self._make(planner, lower, upper, start, goal, budget, seed)
+
+    def _make(self, planner, lower, upper, start, goal, budget, seed) -> None:
         ou.RNG.setSeed(ompl_seed(seed))
         d = self.dim = len(lower)
         space = ob.RealVectorStateSpace(d)
@@ -342,7 +347,8 @@ class _Problem:
         """Run (or go on with) the search until ``stop()``; the path once one is found.
         (``pause_at``, the count at which ``stop()`` pauses, is not needed here: OMPL asks
         ``stop()`` every iteration.)"""
-        self.setup.solve(ob.PlannerTerminationCondition(stop))
+        with quiet_ompl():
+            self.setup.solve(ob.PlannerTerminationCondition(stop))
         if not self.setup.haveExactSolutionPath():
             return None
         d = self.dim

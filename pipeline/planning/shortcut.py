@@ -9,12 +9,14 @@ from pipeline.planning.base import Budget
 
 
 def shortcut(path: np.ndarray, budget: Budget, rng: np.random.Generator, resolution: float,
-             attempts: int, compiled: bool = True) -> np.ndarray:
+             attempts: int, compiled: bool = True, rng_kept: bool = True) -> np.ndarray:
     """At most ``attempts`` tries, and none once the budget is spent; the pairs of
     waypoints are ``sorted(rng.choice(len(path), size=2, replace=False))`` (:class:`Pairs`).
     A robot model with its own compiled shortcutting (``shortcut_search``: the sphere
-    checker's) does the same with it, unless ``compiled`` is False."""
-    pairs = Pairs(rng)
+    checker's) does the same with it, unless ``compiled`` is False.  ``rng_kept=False``:
+    the caller drops ``rng`` afterwards, so it is not left as numpy's draws would leave it
+    (the same pairs; spares restoring its state)."""
+    pairs = Pairs(rng, rng_kept)
     search = getattr(budget.robot, "shortcut_search", None) if compiled else None
     if search is not None and pairs.start is not None:
         try:
@@ -23,7 +25,7 @@ def shortcut(path: np.ndarray, budget: Budget, rng: np.random.Generator, resolut
             pairs.close()
         if shorter is not None:
             return shorter
-        pairs = Pairs(rng)
+        pairs = Pairs(rng, rng_kept)
     try:
         for _ in range(attempts):
             if len(path) < 3 or budget.spent:
@@ -48,10 +50,11 @@ class Pairs:
     shuffles the two (one 32-bit output).  PCG64 makes 32-bit outputs as halves of its
     64-bit ones, low half first; here those come in batches (``random_raw``), and
     :meth:`close` leaves the generator as numpy's draws would have.  Any other generator,
-    or one with a half output pending, is left to ``rng.choice``."""
+    or one with a half output pending, is left to ``rng.choice``.  ``restore=False``:
+    :meth:`close` leaves the generator as it is (its owner drops it)."""
 
-    def __init__(self, rng: np.random.Generator):
-        self.rng, self.bits = rng, rng.bit_generator
+    def __init__(self, rng: np.random.Generator, restore: bool = True):
+        self.rng, self.bits, self.restore = rng, rng.bit_generator, restore
         self.start = self.bits.state if type(self.bits) is np.random.PCG64 else None
         if self.start is not None and self.start["has_uint32"]:
             self.start = None
@@ -91,7 +94,7 @@ class Pairs:
 
     def close(self) -> None:
         """The generator as after ``self.used`` 32-bit outputs from where it started."""
-        if self.start is None or not self.words:
+        if self.start is None or not self.words or not self.restore:
             return
         half = self.used % 2  # a high half drawn and not used yet
         self.bits.state = self.start

@@ -108,10 +108,11 @@ class MobilePanda:
         R = np.asarray(pb.getMatrixFromQuaternion(state[5])).reshape(3, 3)
         return pose_matrix(state[4], R)
 
-    def grasp(self, body: int, tcp_obj: np.ndarray) -> None:
-        """Hold ``body`` with the TCP-to-object transform ``tcp_obj``; places it now."""
+    def grasp(self, body: int, tcp_obj: np.ndarray, q=None) -> None:
+        """Hold ``body`` with the TCP-to-object transform ``tcp_obj``; places it now, with
+        the arm at ``q`` (None: where it is)."""
         self.held, self._tcp_obj = body, np.asarray(tcp_obj, float)
-        self.set_arm(self._current_q())
+        self.set_arm(self._current_q() if q is None else q)
 
     def release(self) -> None:
         self.held = None
@@ -281,9 +282,12 @@ class MobileBase(Robot):
         from pipeline.sim.fast_check import certified_mobile_base
 
         r = self.robot
-        r.set_base(r.pose)  # the held object where base checks will put it
-        return r.remembered_model(type(self), r._current_q().tobytes(),
-                                  lambda: certified_mobile_base(self))
+
+        def make():
+            r.set_base(r.pose)  # the held object where base checks will put it
+            return certified_mobile_base(self)
+
+        return r.remembered_model(type(self), r._current_q().tobytes(), make)
 
     def collides(self, s) -> bool:
         return self.robot.base_collides((s[0], s[1], s[2] / self.psi_scale))

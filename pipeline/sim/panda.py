@@ -112,7 +112,8 @@ class Panda(Robot):
             pb.setCollisionFilterPair(self.body, self.body, a, b, 0, physicsClientId=c)
 
     def set(self, q) -> None:
-        pb.resetJointStatesMultiDof(self.body, ARM_JOINTS, [[float(v)] for v in q],
+        pb.resetJointStatesMultiDof(self.body, ARM_JOINTS,
+                                    np.asarray(q, float).reshape(-1, 1).tolist(),
                                     physicsClientId=self.client)
 
     def collides_at(self, q) -> bool:

@@ -91,9 +91,7 @@ class PickPlaceScene:
 
     def hold(self, inst: PickPlaceInstance, g: RodGrasp, carry: np.ndarray) -> None:
         """The rod in the hand, the arm in the carry configuration."""
-        self.robot.release()
-        self.robot.set_arm(carry)
-        self.robot.grasp(self.rod, g.rod_in_hand(inst.rod_length))
+        self.robot.grasp(self.rod, g.rod_in_hand(inst.rod_length), carry)
 
     def set_configuration(self, q) -> None:
         """q = (x, y, ψ, 7 arm joints)."""

@@ -20,6 +20,9 @@ WALL_HEIGHT = 1.5
 ROOMS = (-3.0, 3.0, -1.6, 1.6)  # x0, x1, y0, y1 of both rooms together
 START_TABLE = Table((-1.9, -1.15), (1.2, 0.6), 0.40)
 GOAL_TABLE = Table((2.1, 0.0), (0.8, 2.4), 0.40)
+#: the goal table's top, corner to corner (x, y): where a placed rod must lie
+_GOAL_LO = np.subtract(GOAL_TABLE.centre, np.divide(GOAL_TABLE.size, 2))
+_GOAL_HI = np.add(GOAL_TABLE.centre, np.divide(GOAL_TABLE.size, 2))
 ROD_START = (-1.9, -1.05)  # centre (x, y) of the rod on the start table, along x
 START_POSE = np.array([-1.9, -0.35, -np.pi / 2])  # facing the start table
 PARK_POSE = np.array([0.0, -4.0, 0.0])  # outside the rooms: where carry IK is solved
@@ -131,9 +134,7 @@ def furniture(door_width: float) -> list[Box]:
 
 def on_goal_table(length: float, placement) -> bool:
     corners = rectangle(placement[:2], (length, ROD_SECTION), placement[2])
-    lo = np.subtract(GOAL_TABLE.centre, np.divide(GOAL_TABLE.size, 2))
-    hi = np.add(GOAL_TABLE.centre, np.divide(GOAL_TABLE.size, 2))
-    return bool(np.all(corners >= lo) and np.all(corners <= hi))
+    return bool(np.all(corners >= _GOAL_LO) and np.all(corners <= _GOAL_HI))
 
 
 def in_rooms(pose) -> bool:
