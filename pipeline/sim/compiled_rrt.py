@@ -483,6 +483,33 @@ class _Checks:
         return 0
 
 
+@njit(cache=True)
+def _path_rows(sm, gm, par):  # pragma: no cover (compiled)
+    """The rows of the solution path: ``sm``'s ancestors from the start root down to
+    ``sm``, then ``gm`` up to the goal root (a loop in Python cost more than its search's
+    last iterations)."""
+    head = 0
+    i = sm
+    while i >= 0:
+        head += 1
+        i = par[i]
+    tail = 0
+    i = gm
+    while i >= 0:
+        tail += 1
+        i = par[i]
+    out = np.empty(head + tail, dtype=np.int64)
+    i = sm
+    for k in range(head - 1, -1, -1):
+        out[k] = i
+        i = par[i]
+    i = gm
+    for k in range(head, head + tail):
+        out[k] = i
+        i = par[i]
+    return out
+
+
 class CompiledRRTConnect:
     """One planning call's search (:class:`pipeline.planning.ompl_adapter._Problem`'s
     interface: :meth:`solve` until a path or the termination condition, again after a
@@ -561,17 +588,7 @@ class CompiledRRTConnect:
 
     def _path(self) -> np.ndarray:
         """Start root … ``_SM``, then ``_GM`` … goal root (RRTConnect's solution path)."""
-        ctl, par = self.ctl, self.par
-        head, tail = [], []
-        i = int(ctl[_SM])
-        while i >= 0:
-            head.append(i)
-            i = int(par[i])
-        i = int(ctl[_GM])
-        while i >= 0:
-            tail.append(i)
-            i = int(par[i])
-        return self.X[head[::-1] + tail].copy()
+        return self.X[_path_rows(self.ctl[_SM], self.ctl[_GM], self.par)]
 
     def forget_approximations(self) -> None:
         """Nothing to forget: only an exact path is ever kept."""
@@ -672,6 +689,7 @@ def warm_up(checker) -> None:
     d = 3
     CompiledRRTConnect(np.zeros(d), np.ones(d), np.zeros(d), np.ones(d), budget, 0.0, 0.01,
                        1).solve(lambda: True)
+    _path_rows(np.int64(0), np.int64(1), np.full(2, -1, dtype=np.int64))
     pairs = types.SimpleNamespace(words=[0] * 8, used=0)
     shortcut(np.zeros((3, d)), budget, pairs, 0.01, 1)
 
