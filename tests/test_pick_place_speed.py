@@ -720,3 +720,28 @@ def test_the_benchmark_refuses_an_entries_file_it_cannot_use_in_one_line(tmp_pat
     assert done.returncode == 2 and done.stdout == ""
     assert len(done.stderr.strip().splitlines()) == 1 and str(path) in done.stderr
     assert content is None or path.read_bytes() == content
+
+
+# -- RAWPLANNER ------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("instance", [5004, 5011, 40])
+def test_raw_planner_answers_as_with_exact_checks(instance):
+    """RAWPLANNER's base poses k_b are checked by the base model's geometry where it settles
+    them (``base_pose_collides``), and the robot is left at each pose drawn, as pybullet's
+    check leaves it: the placements drawn next are checked with the robot standing there,
+    so a robot left only at the free ones changes later draws (instance 5011 shows it), and
+    one left nowhere solves the place IK elsewhere.  Status, tries, checks, score and
+    constraint equal ``exact``'s bit for bit."""
+    found = {}
+    for collision in ("spheres", "exact"):
+        domain = load_domain("pick_place", planner={"name": "rrt_connect",
+                                                    "collision": collision})
+        try:
+            seed = worker.entry_seed(0, instance, worker.RAW_ENTRY)
+            raw = domain.raw_plan(domain.sample_instance(instance), seed=seed)
+        finally:
+            domain.close()
+        found[collision] = (int(raw.plan.status), raw.tries, raw.plan.checks,
+                            np.float64(raw.plan.score).tobytes(),
+                            None if raw.constraint is None else raw.constraint.tobytes())
+    assert found["spheres"] == found["exact"]

@@ -68,7 +68,13 @@ def _place(d, inst, g, carry, pick_path, placement, rng, seed, tries):
         pose = sample_base_pose(rng, placement[:2], c.reach_radius)
         draws, checks = draws + 1, checks + 1
         d.hold(inst, g, carry)
-        if not in_rooms(pose) or robot.base_collides(pose):
+        if not in_rooms(pose):
+            continue
+        collides = d.base_pose_collides()(pose)  # pybullet's answer, by geometry where it can
+        # the robot stays at the pose, as after pybullet's check: the place IK is solved
+        # there, and the placements drawn next are checked with the robot standing there
+        robot.set_base(pose)
+        if collides:
             continue
         free, tries = free + 1, tries + 1
         theta = Route(g, placement, pose, START_POSE)
