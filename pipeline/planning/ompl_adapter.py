@@ -15,8 +15,8 @@ generator each time it is called, so every call seeds it from the call's own see
 builds a fresh space, setup and planner: the sampler, the nearest-neighbour structure and
 the planner receive the same seeds whatever ran before in the process.  Everything else
 that is random here (shortcutting) draws from a numpy Generator seeded per call.  OMPL's
-log is silenced while OMPL's objects are made and search (re-seeding logs an error by
-design) and restored after, so importing or calling this module changes no global
+log is silenced while OMPL's own objects are made and while they search (re-seeding logs
+an error by design) and restored after, so importing or calling this module changes no global
 setting; a compiled search (the robot's own, :mod:`pipeline.planning.rrt_connect`) never
 touches OMPL's log.  A call may also run as a
 try that pauses and resumes on the same planner object (:class:`OmplSearch`,

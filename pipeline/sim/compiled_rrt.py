@@ -486,8 +486,8 @@ class _Checks:
 @njit(cache=True)
 def _path_rows(sm, gm, par):  # pragma: no cover (compiled)
     """The rows of the solution path: ``sm``'s ancestors from the start root down to
-    ``sm``, then ``gm`` up to the goal root (a loop in Python cost more than its search's
-    last iterations)."""
+    ``sm``, then ``gm`` up to the goal root (compiled: walking the parents in Python cost
+    about 1 % of a pick_place entry)."""
     head = 0
     i = sm
     while i >= 0:
