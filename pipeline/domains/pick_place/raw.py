@@ -64,17 +64,20 @@ def _place(d, inst, g, carry, pick_path, placement, rng, seed, tries):
     """Steps 4-6 for one grasp and placement: (Route or None, plan, checks, tries)."""
     c, robot = d.config, d.robot
     checks, plan, free, draws = 0, PlanResult(Status.GOAL_IN_COLLISION, step="base_pose"), 0, 0
+    collides = None  # the base pose check, made once the rod is held (one grasp, one carry)
     while free < c.raw_base_samples and draws < 20 * c.raw_base_samples:
         pose = sample_base_pose(rng, placement[:2], c.reach_radius)
         draws, checks = draws + 1, checks + 1
         d.hold(inst, g, carry)
         if not in_rooms(pose):
             continue
-        collides = d.base_pose_collides()(pose)  # pybullet's answer, by geometry where it can
+        if collides is None:
+            collides = d.base_pose_collides()  # pybullet's answers, by geometry where it can
+        hit = collides(pose)
         # the robot stays at the pose, as after pybullet's check: the place IK is solved
         # there, and the placements drawn next are checked with the robot standing there
         robot.set_base(pose)
-        if collides:
+        if hit:
             continue
         free, tries = free + 1, tries + 1
         theta = Route(g, placement, pose, START_POSE)
