@@ -724,6 +724,54 @@ def test_the_benchmark_refuses_an_entries_file_it_cannot_use_in_one_line(tmp_pat
 
 # -- RAWPLANNER ------------------------------------------------------------------------------
 
+def _pybullet_state(robot) -> bytes:
+    """Every pose and joint position of the mobile robot and the rod it holds, as bytes."""
+    c = robot.client
+    poses = [pb.getBasePositionAndOrientation(b, physicsClientId=c)
+             for b in (robot.platform, robot.body, robot.held)]
+    joints = pb.getJointStates(robot.body, P.ARM_JOINTS, physicsClientId=c)
+    return np.array([v for p in poses for part in p for v in part]
+                    + [j[0] for j in joints]).tobytes()
+
+
+def test_raw_planners_put_off_holds_and_moves_leave_pybullet_as_doing_them():
+    """RAWPLANNER's draws hold the rod and move the base to every pose; ``_Standing`` puts
+    that off until pybullet is asked.  After any run of holds and moves, its update leaves
+    pybullet bit for bit as doing each step does (a second scene of the same instance),
+    including the rod's pose, which depends on where the last hold was made."""
+    from pipeline.domains.pick_place.raw import _Standing
+    done, put_off = (load_domain("pick_place", planner={"name": "rrt_connect"})
+                     for _ in range(2))
+    try:
+        inst = done.check_instance(_store()["instances"][0])
+        for domain in (done, put_off):
+            domain.scene(inst)
+        g = done.grasps[0]
+        carry, _ = done.carry(inst, g)
+        assert carry is not None
+        put_off.carry(inst, g)
+        stand = _Standing(put_off, inst, g, carry)
+        rng = np.random.default_rng(5)
+        x0, x1, y0, y1 = ROOMS
+        updates = 0
+        for _ in range(30):
+            for _ in range(int(rng.integers(1, 6))):
+                done.hold(inst, g, carry)
+                stand.hold()
+                if rng.random() < 0.8:
+                    pose = rng.uniform([x0, y0, -np.pi], [x1, y1, np.pi])
+                    done.robot.set_base(pose)
+                    stand.move(pose)
+            before = _pybullet_state(put_off.robot)
+            stand.update()
+            updates += before != _pybullet_state(put_off.robot)
+            assert _pybullet_state(put_off.robot) == _pybullet_state(done.robot)
+        assert updates > 20  # the steps were put off, and brought up to date
+    finally:
+        done.close()
+        put_off.close()
+
+
 @pytest.mark.parametrize("instance", [5004, 5011, 40])
 def test_raw_planner_answers_as_with_exact_checks(instance):
     """RAWPLANNER's base poses k_b are checked by the base model's geometry where it settles

@@ -251,23 +251,29 @@ class PickPlaceDomain(Domain):
         plans on the same model)."""
         return planner_check(self.arm_motion, self._scene.arm, self.robot.fresh_contacts)
 
-    def base_pose_collides(self):
+    def base_pose_collides(self, prepare=None):
         """The check of a base pose (x, y, ψ) at the robot's current arm state and load:
         where the base planner's sphere pre-check settles the pose by geometry alone
         (:func:`pipeline.domains.ik.settles_by_spheres`), its answer, else pybullet's at
         the pose itself.  The base motion that follows plans on the same model, which then knows
-        these poses."""
+        these poses.  ``prepare``: called before pybullet is asked (a caller that put off
+        moving the robot brings pybullet up to date)."""
         robot = self.robot
+        ask = robot.base_collides
+        if prepare is not None:
+            def ask(pose) -> bool:
+                prepare()
+                return robot.base_collides(pose)
         if not settles_by_spheres(self.base_motion, robot.fresh_contacts):
-            return robot.base_collides
+            return ask
         checker = getattr(self.base_motion.check_model(self._scene.base), "checker", None)
         if checker is None:
-            return robot.base_collides
+            return ask
         s = self.config.psi_scale
 
         def collides(pose) -> bool:
             free = checker.settle(np.array([pose[0], pose[1], s * pose[2]]))
-            return robot.base_collides(pose) if free is None else not free
+            return ask(pose) if free is None else not free
         return collides
 
     def drive(self, inst, g: RodGrasp, carry, poses, seed: int) -> PlanResult:

@@ -65,20 +65,23 @@ def _place(d, inst, g, carry, pick_path, placement, rng, seed, tries):
     c, robot = d.config, d.robot
     checks, plan, free, draws = 0, PlanResult(Status.GOAL_IN_COLLISION, step="base_pose"), 0, 0
     collides = None  # the base pose check, made once the rod is held (one grasp, one carry)
+    stand = _Standing(d, inst, g, carry)
     while free < c.raw_base_samples and draws < 20 * c.raw_base_samples:
         pose = sample_base_pose(rng, placement[:2], c.reach_radius)
         draws, checks = draws + 1, checks + 1
-        d.hold(inst, g, carry)
+        stand.hold()
         if not in_rooms(pose):
             continue
-        if collides is None:
-            collides = d.base_pose_collides()  # pybullet's answers, by geometry where it can
+        if collides is None:  # pybullet's answers, by geometry where it can
+            stand.update()
+            collides = d.base_pose_collides(prepare=stand.update)
         hit = collides(pose)
         # the robot stays at the pose, as after pybullet's check: the place IK is solved
         # there, and the placements drawn next are checked with the robot standing there
-        robot.set_base(pose)
+        stand.move(pose)
         if hit:
             continue
+        stand.update()
         free, tries = free + 1, tries + 1
         theta = Route(g, placement, pose, START_POSE)
         ik = d.place_ik(inst, theta, seed + tries)
@@ -100,7 +103,51 @@ def _place(d, inst, g, carry, pick_path, placement, rng, seed, tries):
             continue
         plan = d.joined(pick_path, drive.path, put.path, carry, pose, 0)
         return Route(g, placement, pose, subgoal_on(drive.path)), plan, checks, tries
+    stand.update()
     return None, plan, checks, tries
+
+
+class _Standing:
+    """The rod held in the carry configuration and the base moved to each pose drawn, as
+    :func:`_place` does them, put off while nothing asks pybullet: most poses drawn are
+    refuted by the base model's geometry, and moving the robot there (the rod placed from
+    the arm's kinematics, then carried along) cost more than the rest of RAWPLANNER.  Where
+    the robot stands decides later answers (the place IK, pybullet's checks of the next
+    placements), so :meth:`update` makes pybullet's state exactly what doing each step
+    would have made it: the last hold done where the robot stood, then the last move (a
+    hold's outcome depends only on the base pose and the carry; a move's on the hold
+    before it and the pose)."""
+
+    def __init__(self, d, inst, g, carry):
+        self.d, self.inst, self.g, self.carry = d, inst, g, carry
+        #: None: pybullet is up to date; else (base pose of the last hold, pose moved to
+        #: after it or None)
+        self.pending = None
+        self.held_at = None
+
+    def hold(self) -> None:
+        if self.pending is None:
+            self.d.hold(self.inst, self.g, self.carry)
+            self.held_at = self.d.robot.pose.copy()
+        else:
+            held_at, moved_to = self.pending
+            self.held_at = held_at if moved_to is None else moved_to
+            self.pending = (self.held_at, None)
+
+    def move(self, pose) -> None:
+        self.pending = (self.held_at, np.asarray(pose, float).copy())
+
+    def update(self) -> None:
+        """pybullet's state brought to what the steps put off would have made it."""
+        if self.pending is None:
+            return
+        held_at, moved_to = self.pending
+        self.pending = None
+        robot = self.d.robot
+        robot.set_base(held_at)
+        self.d.hold(self.inst, self.g, self.carry)
+        if moved_to is not None:
+            robot.set_base(moved_to)
 
 
 def _sample_placement(d, inst, rng, draws: int = 30):
