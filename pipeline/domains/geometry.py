@@ -3,6 +3,7 @@ obstacles for instance specs.  No simulator."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,8 +28,32 @@ def rectangle(centre, size, yaw: float) -> np.ndarray:
 
 
 def rectangles_overlap(a: np.ndarray, b: np.ndarray, margin: float = 0.0) -> bool:
-    """Separating-axis test of two convex quadrilaterals (corners in order), ``margin``
-    added to the gap that counts as separation."""
+    """Separating-axis test of two rectangles (corners in order, as :func:`rectangle` makes
+    them), ``margin`` added to the gap that counts as separation.  Rectangles far apart
+    are answered by their circumcircles first (:func:`_far_apart`), with the same answer."""
+    return not _far_apart(a, b, margin) and separating_axes_overlap(a, b, margin)
+
+
+def _circumcircle(poly: np.ndarray) -> tuple[float, float, float]:
+    (x0, y0), _, (x2, y2), _ = corners = poly.tolist()
+    cx, cy = (x0 + x2) / 2, (y0 + y2) / 2
+    return cx, cy, max(math.hypot(x - cx, y - cy) for x, y in corners)
+
+
+def _far_apart(a: np.ndarray, b: np.ndarray, margin: float) -> bool:
+    """Whether an edge normal of rectangle ``a`` certainly separates it from ``b`` by more
+    than ``margin``: the line through their centres (d apart) is within 45° of one of a's
+    normals, along which the centres lie at least d/√2 apart and each rectangle reaches no
+    farther than its circumradius.  1e-9 m more covers the rounding of both tests.
+    (Sampling pick_place's obstacles spent nearly all its time on such pairs.)"""
+    ax, ay, ra = _circumcircle(a)
+    bx, by, rb = _circumcircle(b)
+    return math.hypot(ax - bx, ay - by) > math.sqrt(2.0) * (ra + rb + margin + 1e-9)
+
+
+def separating_axes_overlap(a: np.ndarray, b: np.ndarray, margin: float = 0.0) -> bool:
+    """The separating-axis test itself, for two convex quadrilaterals (corners in order):
+    no edge normal separates them by more than ``margin``."""
     for poly in (a, b):
         for k in range(4):
             edge = poly[(k + 1) % 4] - poly[k]
