@@ -131,8 +131,9 @@ def test_grasp_base_refuses_bad_constraints_and_specs(grasp_base):
 def test_rectangles_far_apart_are_answered_as_the_separating_axes_answer(margin):
     """``rectangles_overlap`` answers rectangles whose circumcircles lie far apart without
     the separating-axis test, and always as that test does: rectangles of pick_place's
-    obstacle sizes and of a table's, every turn, centres up to twice the shortcut's reach
-    apart (both answers met on both sides of it)."""
+    obstacle sizes and of a table's, every turn, centres up to twice the bound's distance
+    apart (√2 × (circumradii + margin); overlapping and apart pairs within it, apart ones
+    beyond it)."""
     from pipeline.domains.geometry import (
         _far_apart,
         rectangle,
