@@ -230,7 +230,7 @@ def report(name: str, args, times: dict, tmp: Path) -> None:
         print(f"  {label[v]:<44}{med[v]['wall_ms']:>14.2f}{med[v]['cpu_ms']:>13.2f}"
               f"{med[v]['feasible_ms']:>12.2f}{times[v][-1]['feasible']:>10}{ratio:>10.2f}x")
     ratio = med["new"]["cpu_ms"] / med["rrt"]["cpu_ms"]
-    print(f"  target: trajopt <= {TARGET_RATIO:g}x rrt_connect per entry: "
+    print(f"  target: {name}, trajopt <= {TARGET_RATIO:g}x rrt_connect per entry: "
           + ("met" if ratio <= TARGET_RATIO else "not met") + f" ({ratio:.2f}x cpu, "
           f"{med['new']['wall_ms'] / med['rrt']['wall_ms']:.2f}x wall)")
     if "base" in times:
