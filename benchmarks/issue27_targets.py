@@ -17,7 +17,7 @@ The benchmarks and the settings the issue names:
 
 The two remaining targets are whole commands, timed as a user runs them: the README's main
 job (``/usr/bin/time python -m pipeline stage=all``, ≤ 4 minutes) and the test suite
-(``bash .ci/run``, under 10 minutes).  About 15 minutes on the 2-core machine; nothing
+(``bash .ci/run``, under 10 minutes).  About 9 minutes on the 2-core machine; nothing
 else should run meanwhile.
 
 Run: python benchmarks/issue27_targets.py
