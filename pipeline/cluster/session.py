@@ -119,6 +119,7 @@ def connect(cfg, console, preload: Sequence[str] = ()) -> Iterator[ClusterClient
         if cfg.kind is not ClusterKind.local:
             cloudpickle.register_pickle_by_value(worker_side)
             client.register_plugin(worker_side.WorkerTuning(), name=TUNING_PLUGIN)
+        client.register_plugin(worker_side.QuietClose())
         client.watchdog = Watchdog(client, timeout=cfg.worker_timeout, say=say, keeper=keeper,
                                    digest=worker_side.code_digest(), hint=hint)
         n = client.watchdog.wait_for_first()

@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
+import logging
 import os
+import weakref
 from pathlib import Path
 
-from distributed.diagnostics.plugin import NannyPlugin
+from distributed.diagnostics.plugin import NannyPlugin, WorkerPlugin
 
 #: Packages whose code must be identical on the coordinator and every worker.
 PACKAGES = ("pipeline", "box_core")
@@ -76,6 +78,46 @@ class WorkerTuning(NannyPlugin):
             nanny.process.config = dask.config.merge(nanny.process.config,
                                                      _nested(TUNED_CONFIG))
         self.restart = bool(stale)
+
+
+#: What distributed's worker logs, with two tracebacks, when a heartbeat to the scheduler fails.
+HEARTBEAT_FAILED = "Failed to communicate with scheduler during heartbeat."
+#: The worker statuses of a worker that is shutting down.
+CLOSING = ("closing", "closing_gracefully", "closed")
+
+
+class _ClosingHeartbeat(logging.Filter):
+    """Drops HEARTBEAT_FAILED once ``worker`` is closing (or gone), and nothing else."""
+
+    def __init__(self, worker):
+        super().__init__()
+        self.worker = weakref.ref(worker)
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.msg != HEARTBEAT_FAILED:
+            return True
+        worker = self.worker()
+        return worker is not None and getattr(worker.status, "name", "") not in CLOSING
+
+
+class QuietClose(WorkerPlugin):
+    """A worker closing while its heartbeat is in flight aborts that heartbeat itself
+    (``Worker.close`` closes its connection pool), and distributed then logs the aborted
+    heartbeat as an error with two tracebacks: at the end of a run, or when a run that was
+    suspended (SIGSTOP, a laptop's lid) resumes only to stop, the last thing a person reads
+    is a traceback about a shutdown that went as meant.  This plugin makes each worker drop
+    that one record once it is closing; a heartbeat failing while the worker still runs is
+    logged as before.  The filter outlives the plugin on purpose: a worker removes its plugins
+    before it closes its connection pool."""
+
+    idempotent = True
+    name = "box-planning-quiet-close"
+
+    def setup(self, worker) -> None:
+        log = logging.getLogger("distributed.worker")
+        if not any(isinstance(f, _ClosingHeartbeat) and f.worker() is worker
+                   for f in log.filters):
+            log.addFilter(_ClosingHeartbeat(worker))
 
 
 def code_digest() -> str | None:
