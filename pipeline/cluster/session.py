@@ -116,10 +116,10 @@ def connect(cfg, console, preload: Sequence[str] = ()) -> Iterator[ClusterClient
         return
     cluster, client, keeper, hint = _start(cfg, say, preload)
     try:
+        cloudpickle.register_pickle_by_value(worker_side)  # for workers without this package
+        _quiet_workers(client)  # first: workers the tuning restarts then rejoin with it
         if cfg.kind is not ClusterKind.local:
-            cloudpickle.register_pickle_by_value(worker_side)
             client.register_plugin(worker_side.WorkerTuning(), name=TUNING_PLUGIN)
-        client.register_plugin(worker_side.QuietClose())
         client.watchdog = Watchdog(client, timeout=cfg.worker_timeout, say=say, keeper=keeper,
                                    digest=worker_side.code_digest(), hint=hint)
         n = client.watchdog.wait_for_first()
@@ -139,6 +139,15 @@ def connect(cfg, console, preload: Sequence[str] = ()) -> Iterator[ClusterClient
         yield client
     finally:
         _close(client, cluster)
+
+
+def _quiet_workers(client) -> None:
+    """Registers worker_side.QuietClose.  The scheduler keeps a worker plugin before it sends
+    it to the workers, and a worker that joins or restarts later gets it from there; so a
+    worker leaving or restarting meanwhile (another run's WorkerTuning on a shared
+    scheduler), which makes the sending fail, is no reason to stop this run."""
+    with contextlib.suppress(OSError):  # distributed's CommClosedError is an OSError
+        client.register_plugin(worker_side.QuietClose())
 
 
 def _close(client, cluster) -> None:

@@ -115,7 +115,8 @@ class QuietClose(WorkerPlugin):
 
     def setup(self, worker) -> None:
         log = logging.getLogger("distributed.worker")
-        if not any(isinstance(f, _ClosingHeartbeat) and f.worker() is worker
+        # by name: pickled by value, each registration brings its own copy of the class
+        if not any(type(f).__name__ == _ClosingHeartbeat.__name__ and f.worker() is worker
                    for f in log.filters):
             log.addFilter(_ClosingHeartbeat(worker))
 
