@@ -22,17 +22,30 @@ core, both measured in the same run.
    per entry, the median of the per-instance ratios, the entries it answered and whether
    every entry is the same (status, feasible, failed step, checks, length, score).
 
+4. grasp_arm as issue 27 found it: the code at ``--filed-rev`` (2ff2245, the parent of the
+   issue's first commit; ``''`` skips this part) against this checkout, ``damped`` and
+   ``analytic``, on the same instances × 162 constraints, each variant in its own process
+   (benchmarks/entries_child.py, which runs on the old code too) after an untimed warm-up
+   run, the variants in turn, median of ``--filed-repeats`` runs: CPU ms per entry, the
+   ratios, and whether the old and the new ``damped`` give every entry the same status and
+   feasibility.
+
 Run: python benchmarks/bench_ik.py [--instances 5] [--entry-instances 20]
-         [--wrist-instances 20]
+         [--wrist-instances 20] [--filed-rev 2ff2245] [--filed-instances 20]
+         [--filed-repeats 3]
 """
 
 from __future__ import annotations
 
 import argparse
+import statistics
+import tempfile
 import time
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
+from child_runs import export_revision, run_child
 
 from pipeline.domains import load_domain
 from pipeline.planning import Status
@@ -42,6 +55,9 @@ from pipeline.sim import panda as P
 #: issue 27, item 2: grasp_arm's mean per entry with ``domain.ik=analytic`` (ms), and how
 #: many times cheaper than ``damped`` it is to be
 TARGET_MS, TARGET_RATIO = 1.0, 2.0
+#: the code when issue 27 was filed: the parent of its first commit (17ef58b)
+FILED_REV = "2ff2245"
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def reached(arm, q, pos, orn) -> bool:
@@ -188,6 +204,44 @@ def wrist_test(n: int) -> None:
           f"{same} of {n * 162} entries identical")
 
 
+def as_filed(rev: str, n: int, repeats: int) -> None:
+    """Section 4 of the module docstring."""
+    child = str(Path(__file__).with_name("entries_child.py"))
+    with tempfile.TemporaryDirectory(prefix="bench_ik_") as tmp:
+        old = export_revision(rev, Path(tmp) / "old")
+        if old is None:
+            return
+        variants = {f"damped at {rev}": (old, None), "damped": (ROOT, "damped"),
+                    "analytic": (ROOT, "analytic")}
+        for label, (root, ik) in variants.items():  # untimed: numba caches, wrist table
+            run_child(child, {"domain": "grasp_arm", "ik": ik, "instances": 1,
+                              "constraints": 162}, root, label)
+        runs = {label: [] for label in variants}
+        names = list(variants)
+        for r in range(repeats):
+            for label in names[r % len(names):] + names[: r % len(names)]:
+                root, ik = variants[label]
+                runs[label].append(run_child(child, {"domain": "grasp_arm", "ik": ik,
+                                                     "instances": n, "constraints": 162},
+                                             root, label))
+    entries = n * 162
+    ms = {label: statistics.median(sum(o["cpu"]) for o in outs) / entries * 1e3
+          for label, outs in runs.items()}
+    then = f"damped at {rev}"
+    print(f"\ngrasp_arm as issue 27 found it ({rev}) and now, {n} instances x 162 "
+          f"constraints = {entries} entries per run, one core, median of {repeats} runs")
+    for label in variants:
+        gain = "" if label == then else f"; {ms[then] / ms[label]:.2f}x cheaper than at {rev}"
+        print(f"  {label:<20} {ms[label]:6.3f} CPU ms per entry; feasible "
+              f"{sum(runs[label][0]['feasible'])} of {entries}{gain}")
+    print(f"  as filed: grasp_arm per entry {ms[then] / ms['damped']:.2f}x cheaper now with "
+          f"damped, {ms[then] / ms['analytic']:.2f}x with analytic (item 2 asked >= "
+          f"{TARGET_RATIO:g}x with analytic)")
+    same = all(runs[then][0][k] == runs["damped"][0][k] for k in ("status", "feasible"))
+    print(f"  damped at {rev} and now: every entry's status and feasibility "
+          + ("the same" if same else "NOT the same"))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--instances", type=int, default=5,
@@ -196,10 +250,19 @@ def main() -> None:
                     help="instances of the per-entry part (x 162 entries); 0 skips it")
     ap.add_argument("--wrist-instances", type=int, default=20,
                     help="instances of the wrist test's part (x 162 entries); 0 skips it")
+    ap.add_argument("--filed-rev", default=FILED_REV,
+                    help="the revision of the 'as filed' part; '' skips it")
+    ap.add_argument("--filed-instances", type=int, default=20,
+                    help="instances of the 'as filed' part (x 162 entries)")
+    ap.add_argument("--filed-repeats", type=int, default=3,
+                    help="timed runs per variant of the 'as filed' part")
     args = ap.parse_args()
     for name in ("instances", "entry_instances", "wrist_instances"):
         if getattr(args, name) < 0:
             ap.error(f"--{name.replace('_', '-')} must be >= 0")
+    for name in ("filed_instances", "filed_repeats"):
+        if getattr(args, name) < 1:
+            ap.error(f"--{name.replace('_', '-')} must be >= 1")
     try:
         import frankik  # noqa: F401
     except ImportError:
@@ -210,6 +273,8 @@ def main() -> None:
         per_entry(args.entry_instances)
     if args.wrist_instances:
         wrist_test(args.wrist_instances)
+    if args.filed_rev:
+        as_filed(args.filed_rev, args.filed_instances, args.filed_repeats)
 
 
 if __name__ == "__main__":
