@@ -1,4 +1,5 @@
-"""What the coordinator sends to worker processes: the tuning plugin and a probe.
+"""What the coordinator sends to worker processes: two plugins (tuning, quiet closing) and a
+probe.
 
 This module imports only the standard library and dask/distributed, and the coordinator
 pickles it *by value* (``cloudpickle.register_pickle_by_value``), so it works on a worker
