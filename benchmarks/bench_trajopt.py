@@ -27,7 +27,8 @@ Printed per domain: mean wall and CPU ms per entry over all entries (median of t
 repeats), median ms per feasible call (IK + planner, each variant's own feasible calls),
 TrajOpt's ratio to RRT-Connect (target <= 3), and how many entries of ``new`` agree with
 ``exact`` and ``base`` bit for bit: status, feasibility, failed step, checks, path length,
-score and the path's bytes.
+score and the path's bytes; and, entry by entry, which outcome under RRT-Connect met which
+under TrajOpt, with each pair's mean cost and share of TrajOpt's time.
 
 Run: python benchmarks/bench_trajopt.py [--arm-instances 6] [--raw 40] [--base-instances 20]
          [--base-constraints 30] [--repeats 3] [--baseline-rev 4e14f96] [--only grasp_arm]
@@ -244,6 +245,25 @@ def report(name: str, args, times: dict, tmp: Path) -> None:
         status = times[v][-1]["status"]
         print(f"  outcomes {v}: " + ", ".join(f"{k} {c / n:.1%}" for k, c in sorted(
             status.items(), key=lambda kv: -kv[1])))
+    outcome_pairs(tmp / f"{name}.rrt.npz", tmp / f"{name}.new.npz")
+
+
+def outcome_pairs(rrt: Path, new: Path) -> None:
+    """Where TrajOpt's time goes against RRT-Connect's, entry by entry (each planning call's
+    own measured time, the last run of each): per pair of outcomes, the entries, the mean ms
+    of each planner and TrajOpt's share of its total."""
+    from pipeline.planning import Status
+
+    a, b = np.load(rrt), np.load(new)
+    total = b["time"].sum()
+    pairs = Counter(zip(a["status"].tolist(), b["status"].tolist(), strict=True))
+    print("  outcome pairs (rrt -> trajopt): entries, mean ms rrt / trajopt, trajopt's share")
+    for (x, y), count in sorted(pairs.items(), key=lambda kv: -b["time"][
+            (a["status"] == kv[0][0]) & (b["status"] == kv[0][1])].sum()):
+        here = (a["status"] == x) & (b["status"] == y)
+        print(f"    {Status(x).name.lower():>18} -> {Status(y).name.lower():<18}{count:6d}"
+              f"{a['time'][here].mean() * 1e3:9.2f} /{b['time'][here].mean() * 1e3:8.2f}"
+              f"{b['time'][here].sum() / total:8.1%}")
 
 
 if __name__ == "__main__":
