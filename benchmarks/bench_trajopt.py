@@ -256,15 +256,16 @@ def outcome_pairs(rrt: Path, new: Path) -> None:
 
     a, b = np.load(rrt), np.load(new)
     total = b["time"].sum()
-    pairs = Counter(zip(a["status"].tolist(), b["status"].tolist(), strict=True))
-    print("  outcome pairs (rrt -> trajopt): entries, mean ms rrt / trajopt, trajopt's share")
-    for (x, y), count in sorted(pairs.items(), key=lambda kv: -b["time"][
-            (a["status"] == kv[0][0]) & (b["status"] == kv[0][1])].sum()):
+    rows = []
+    for (x, y), count in Counter(zip(a["status"].tolist(), b["status"].tolist(),
+                                     strict=True)).items():
         here = (a["status"] == x) & (b["status"] == y)
+        rows.append((b["time"][here].sum(), x, y, count, here))
+    print("  outcome pairs (rrt -> trajopt): entries, mean ms rrt / trajopt, trajopt's share")
+    for spent, x, y, count, here in sorted(rows, key=lambda row: -row[0]):
         print(f"    {Status(x).name.lower():>18} -> {Status(y).name.lower():<18}{count:6d}"
               f"{a['time'][here].mean() * 1e3:9.2f} /{b['time'][here].mean() * 1e3:8.2f}"
-              f"{b['time'][here].sum() / total:8.1%}")
-
+              f"{spent / total:8.1%}")
 
 if __name__ == "__main__":
     main()

@@ -42,5 +42,6 @@ def child(job: dict) -> dict:
 
 if __name__ == "__main__":
     if len(sys.argv) != 3 or sys.argv[1] != "--child":
-        raise SystemExit("usage: entries_child.py --child JSON")
+        print("usage: entries_child.py --child JSON", file=sys.stderr)
+        sys.exit(2)
     print(json.dumps(child(json.loads(sys.argv[2]))))

@@ -16,6 +16,7 @@ import os
 import weakref
 from pathlib import Path
 
+from distributed.core import Status
 from distributed.diagnostics.plugin import NannyPlugin, WorkerPlugin
 
 #: Packages whose code must be identical on the coordinator and every worker.
@@ -83,8 +84,8 @@ class WorkerTuning(NannyPlugin):
 
 #: What distributed's worker logs, with two tracebacks, when a heartbeat to the scheduler fails.
 HEARTBEAT_FAILED = "Failed to communicate with scheduler during heartbeat."
-#: The worker statuses of a worker that is shutting down.
-CLOSING = ("closing", "closing_gracefully", "closed")
+#: The statuses of a worker that is shutting down.
+CLOSING = frozenset({Status.closing, Status.closing_gracefully, Status.closed})
 
 
 class _ClosingHeartbeat(logging.Filter):
@@ -98,7 +99,7 @@ class _ClosingHeartbeat(logging.Filter):
         if record.msg != HEARTBEAT_FAILED:
             return True
         worker = self.worker()
-        return worker is not None and getattr(worker.status, "name", "") not in CLOSING
+        return worker is not None and worker.status not in CLOSING
 
 
 class QuietClose(WorkerPlugin):
